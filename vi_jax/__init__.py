@@ -1,0 +1,11 @@
+"""vi_jax: differentiable Lie-group variational integrators in JAX."""
+
+from . import discrete as discrete, lie as lie, models as models
+from ._diagnostics import (
+    group_constraint_residual as group_constraint_residual,
+    kelvin_noether as kelvin_noether,
+)
+from ._simulate import NewtonFailure as NewtonFailure, Solution as Solution, simulate as simulate
+from ._system import AbstractSystem as AbstractSystem, State as State, System as System
+
+__version__ = "0.1.0"

@@ -1,0 +1,84 @@
+"""Eager input validation at the API boundary: clear ``ValueError``s naming the argument, the
+expectation and the value given. Checks on values run only when the values are concrete
+(outside ``jit``/``vmap``/``grad``); shape and dtype checks always run."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def is_concrete(x) -> bool:
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def _short(value) -> str:
+    text = np.array2string(np.asarray(value), precision=6, threshold=12) if np.ndim(value) else repr(value)
+    return text if len(text) < 200 else text[:197] + "..."
+
+
+def as_array(name, value, shape=None):
+    try:
+        arr = jnp.asarray(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name}: expected an array, got {value!r}") from err
+    if not jnp.issubdtype(arr.dtype, jnp.number) or jnp.issubdtype(arr.dtype, jnp.complexfloating):
+        raise ValueError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
+    if shape is not None and arr.shape != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got shape {arr.shape}")
+    return arr
+
+
+def check_finite(name, value):
+    if is_concrete(value):
+        for leaf in jax.tree_util.tree_leaves(value):
+            if jnp.issubdtype(jnp.asarray(leaf).dtype, jnp.inexact) and not bool(jnp.all(jnp.isfinite(leaf))):
+                raise ValueError(f"{name}: expected finite values, got {_short(leaf)}")
+    return value
+
+
+def check_positive_scalar(name, value):
+    arr = as_array(name, value, ())
+    if is_concrete(arr) and not (bool(jnp.isfinite(arr)) and float(arr) > 0):
+        raise ValueError(f"{name}: expected a finite number > 0, got {_short(arr)}")
+    return arr
+
+
+def check_int(name, value, minimum):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name}: expected an integer ≥ {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_choice(name, value, choices):
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {tuple(choices)}, got {value!r}")
+    return value
+
+
+def check_on_group(name, group, g, tol=1e-6):
+    if is_concrete(g):
+        err = float(group.membership_error(g))
+        if not err <= tol:
+            raise ValueError(
+                f"{name}: expected an element of {type(group).__name__} (membership error ≤ {tol:g}), "
+                f"got membership error {err:.3g} for {_short(g)}"
+            )
+    return g
+
+
+def check_spd(name, value, tol=0.0):
+    arr = as_array(name, value)
+    if is_concrete(arr):
+        mat = np.asarray(arr, dtype=float)
+        if mat.ndim == 1:
+            ok = bool(np.all(np.isfinite(mat)) and np.all(mat > tol))
+        else:
+            ok = bool(
+                mat.shape[0] == mat.shape[1]
+                and np.all(np.isfinite(mat))
+                and np.allclose(mat, mat.T, rtol=1e-10, atol=1e-12)
+                and np.all(np.linalg.eigvalsh(0.5 * (mat + mat.T)) > tol)
+            )
+        if not ok:
+            raise ValueError(f"{name}: expected symmetric positive definite values, got {_short(arr)}")
+    return arr

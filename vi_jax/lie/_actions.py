@@ -1,0 +1,71 @@
+"""Linear left actions of a matrix group on vector spaces, and the diamond operator.
+
+For an action ρ: G → GL(m), the infinitesimal action is ρ'(ξ) = d/dε ρ(exp εξ̂)|₀ (one
+``jax.jvp`` at the identity) and the diamond is defined by ⟨b◇x, η⟩ = −⟨b, ρ'(η)x⟩
+(seed 000 eqs. 14, 24, 45), computed as one VJP.
+"""
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._base import AbstractMatrixGroup
+
+
+class LinearAction(eqx.Module):
+    """g · x = ρ(g) x for a user representation ``rho(g) -> (m, m)`` (defaults to g itself)."""
+
+    group: AbstractMatrixGroup
+    rho: Callable | None = eqx.field(default=None, static=True)
+
+    def matrix(self, g):
+        return g if self.rho is None else self.rho(g)
+
+    def act(self, g, x):
+        return self.matrix(g) @ x
+
+    def act_inverse(self, g, x):
+        """ρ(g)⁻¹ x = ρ(g⁻¹) x."""
+        return self.matrix(self.group.inverse(g)) @ x
+
+    def act_transpose(self, g, b):
+        """ρ(g)ᵀ b (the dual action used in seed 000 eq. 42)."""
+        return self.matrix(g).T @ b
+
+    def infinitesimal(self, xi, x):
+        """ρ'(ξ) x."""
+        if self.rho is None:
+            return self.group.hat(xi) @ x
+        eye = self.group.identity(xi.dtype)
+        return jax.jvp(self.rho, (eye,), (self.group.hat(xi),))[1] @ x
+
+    def infinitesimal_transpose(self, xi, b):
+        """ρ'(ξ)ᵀ b."""
+        if self.rho is None:
+            return self.group.hat(xi).T @ b
+        return jax.linear_transpose(lambda x: self.infinitesimal(xi, x), b)(b)[0]
+
+    def diamond(self, b, x):
+        """b ◇ x ∈ g*: ⟨b◇x, η⟩ = −⟨b, ρ'(η)x⟩."""
+        zero = jnp.zeros(self.group.dim, dtype=jnp.result_type(b, x))
+        (eta_bar,) = jax.linear_transpose(lambda eta: self.infinitesimal(eta, x), zero)(b)
+        return -eta_bar
+
+    def isotropy_basis(self, a0, dtype=None):
+        """Orthonormal basis (columns) of the isotropy algebra {ζ : ρ'(ζ)a₀ = 0} of a₀,
+        the null space of the matrix with columns ρ'(E_i)a₀ (seed 000 spec §1). Its dimension
+        is decided at trace time, so a₀ must be concrete (not traced)."""
+        with jax.ensure_compile_time_eval():
+            a0 = jnp.asarray(a0, dtype)
+            zero = jnp.zeros(self.group.dim, a0.dtype)
+            C = jax.jacfwd(lambda eta: self.infinitesimal(eta, a0))(zero)
+            if isinstance(C, jax.core.Tracer):
+                raise ValueError("advected_reference: expected a concrete a₀ (not traced) for the isotropy algebra")
+        C = np.asarray(C)
+        _, s, vt = np.linalg.svd(C, full_matrices=True)
+        tol = max(C.shape) * np.finfo(C.dtype).eps * (s[0] if s.size else 0.0)
+        rank = int(np.sum(s > tol))
+        return jnp.asarray(vt[rank:].T, dtype=C.dtype)
