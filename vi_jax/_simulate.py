@@ -94,8 +94,16 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
     return h, n_steps, save_every, difference_map(tau)
 
 
+SAVE_BLOCK = 128  # saved nodes per inner scan (see _advance)
+
+
 def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter):
-    """``length`` saved nodes of ``save_every`` steps each; returns (final state, saved states, stats)."""
+    """``length`` saved nodes of ``save_every`` steps each; returns (final state, saved states, stats).
+
+    Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes): writing every
+    step's state straight into one long output buffer costs XLA:CPU more than the step itself
+    (benchmarks/step_cost.py).
+    """
 
     def one_step(state, _):
         worst = None
@@ -104,7 +112,7 @@ def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_
             worst = stats if worst is None else jax.tree.map(jnp.maximum, worst, stats)
         return state, worst
 
-    def chunk(state, _):
+    def node(state, _):
         if save_every == 1:
             state, stats = one_step(state, None)
         else:
@@ -112,8 +120,19 @@ def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_
             stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
         return state, (state, stats)
 
-    final, (saved, stats) = jax.lax.scan(chunk, state, None, length=length)
-    return final, saved, stats
+    def block(state, _):
+        return jax.lax.scan(node, state, None, length=SAVE_BLOCK)
+
+    n_blocks, rest = divmod(length, SAVE_BLOCK)
+    pieces = []
+    if n_blocks:
+        state, out = jax.lax.scan(block, state, None, length=n_blocks)
+        pieces.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out))
+    if rest:
+        state, out = jax.lax.scan(node, state, None, length=rest)
+        pieces.append(out)
+    saved, stats = jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
+    return state, saved, stats
 
 
 _advance_jit = eqx.filter_jit(_advance)

@@ -16,6 +16,8 @@ MAX_ITERATIONS = 1
 NONFINITE = 2
 SINGULAR_DIFFERENCE_MAP = 3
 
+CHORD_ITERATIONS = 2
+
 RESULT_MESSAGES = {
     MAX_ITERATIONS: "Newton did not converge within max_newton_iterations",
     NONFINITE: "Newton produced a non-finite value",
@@ -24,22 +26,29 @@ RESULT_MESSAGES = {
 
 
 def dense_solve(A, b):
-    """Solve A x = b for a small square A by unrolled Gaussian elimination with partial pivoting."""
+    """Solve A x = b for a small square A by unrolled Gaussian elimination without pivoting.
+
+    The Newton matrices of a step are h-perturbations of the Hessian of a regular Lagrangian in
+    its velocities (positive definite kinetic energy), for which elimination without pivoting
+    is stable; a breakdown shows up as a non-finite or non-converged step, never silently.
+    Pivoting's gathers double the cost of a step on CPU (benchmarks/step_cost.py).
+    """
     n = A.shape[0]
-    if n == 1:
-        return b / A[0, 0]
-    Ab = jnp.concatenate([A, b[:, None]], axis=1)
-    rows = jnp.arange(n)
-    for k in range(n):
-        pivot = k + jnp.argmax(jnp.abs(Ab[k:, k]))
-        perm = jnp.where(rows == k, pivot, jnp.where(rows == pivot, k, rows))
-        Ab = Ab[perm]
-        factors = jnp.where(rows > k, Ab[:, k] / Ab[k, k], 0.0)
-        Ab = Ab - factors[:, None] * Ab[k][None, :]
-    x = jnp.zeros(n, Ab.dtype)
+    rows = []
+    for k in range(n):  # forward elimination, one row at a time
+        row, rhs = A[k], b[k]
+        for j, (prev, prev_rhs) in enumerate(rows):
+            factor = row[j] / prev[j]
+            row, rhs = row - factor * prev, rhs - factor * prev_rhs
+        rows.append((row, rhs))
+    x = [None] * n
     for k in reversed(range(n)):
-        x = x.at[k].set((Ab[k, n] - Ab[k, k + 1 : n] @ x[k + 1 :]) / Ab[k, k])
-    return x
+        row, rhs = rows[k]
+        acc = rhs
+        for j in range(k + 1, n):
+            acc = acc - row[j] * x[j]
+        x[k] = acc / row[k]
+    return jnp.stack(x)
 
 
 class NewtonStats(eqx.Module):
@@ -48,15 +57,19 @@ class NewtonStats(eqx.Module):
     result: jax.Array
 
 
-def newton_root(fn, z0, *, rtol, max_iterations):
-    """Root of ``fn(z) -> (residual, scale)`` near ``z0``.
+def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS):
+    """Root of ``fn(z) -> (residual, scale)`` near ``z0`` (a good guess: the previous step).
 
-    Iterates until ‖residual‖∞ ≤ rtol·scale (``scale`` = size of the terms that cancel in the
-    residual), then applies one more Newton correction with the Jacobian already at hand (no
-    extra evaluation): stopping at the tolerance itself would leave an O(rtol) bias per step
-    that accumulates in the conserved quantities. Returns the root and :class:`NewtonStats`
-    (``residual``: relative, before the final correction); gradients flow through the
-    implicit-function theorem.
+    One Newton step, then ``chord_iterations`` steps that reuse its Jacobian (residual-only
+    evaluations), then a convergence check: ‖residual‖∞ ≤ rtol·scale, ``scale`` being the size of
+    the terms that cancel in the residual. If it fails, full Newton iterations continue (up to
+    ``max_iterations`` in all). A final correction with the Jacobian at hand follows the check:
+    stopping at the tolerance itself would leave an O(rtol) bias per step that accumulates in the
+    conserved quantities. A ``while_loop`` iteration inside ``lax.scan`` costs more on CPU than
+    the arithmetic of a small step, so the common path has none (benchmarks/step_cost.py).
+
+    Returns the root and :class:`NewtonStats` (``residual``: relative, before the final
+    correction); gradients flow through the implicit-function theorem.
     """
 
     def residual_only(z):
@@ -73,17 +86,28 @@ def newton_root(fn, z0, *, rtol, max_iterations):
             jac, (r, scale) = jax.jacfwd(with_aux, has_aux=True)(z)
             return r, scale, jac
 
+        def not_converged(r, scale):
+            return jnp.max(jnp.abs(r)) > rtol * scale
+
         def cond(state):
             i, _, r, scale, _ = state
-            return (i < max_iterations) & (jnp.max(jnp.abs(r)) > rtol * scale) & jnp.all(jnp.isfinite(r))
+            return (i < max_iterations) & not_converged(r, scale) & jnp.all(jnp.isfinite(r))
 
         def body(state):
             i, z, r, _, jac = state
             z = z - dense_solve(jac, r)
             return (i + 1, z, *value_and_jac(z))
 
-        state = (jnp.zeros((), jnp.int32), z_init, *value_and_jac(z_init))
-        i, z, r, scale, jac = jax.lax.while_loop(cond, body, state)
+        r, scale, jac = value_and_jac(z_init)
+        z = z_init
+        for _ in range(1 + chord_iterations):
+            z = z - dense_solve(jac, r)
+            r, scale = fn(z)
+        state = (jnp.asarray(1 + chord_iterations, jnp.int32), z, r, scale, jac)
+        state = jax.lax.cond(
+            not_converged(r, scale), lambda s: jax.lax.while_loop(cond, body, s), lambda s: s, state
+        )
+        i, z, r, scale, jac = state
         z = z - dense_solve(jac, r)
         rel = jnp.max(jnp.abs(r)) / jnp.where(scale > 0, scale, 1.0)
         finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(r))

@@ -1,6 +1,9 @@
 """Eager input validation at the API boundary: clear ``ValueError``s naming the argument, the
 expectation and the value given. Checks on values run only when the values are concrete
-(outside ``jit``/``vmap``/``grad``); shape and dtype checks always run."""
+(not traced: also constants closed over by a ``jit``-ed function, evaluated at trace time);
+shape and dtype checks always run."""
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -11,11 +14,23 @@ def is_concrete(x) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
+def _eager(check):
+    """Evaluate a check at trace time when its inputs are concrete constants."""
+
+    @functools.wraps(check)
+    def wrapped(*args, **kwargs):
+        with jax.ensure_compile_time_eval():
+            return check(*args, **kwargs)
+
+    return wrapped
+
+
 def _short(value) -> str:
     text = np.array2string(np.asarray(value), precision=6, threshold=12) if np.ndim(value) else repr(value)
     return text if len(text) < 200 else text[:197] + "..."
 
 
+@_eager
 def as_array(name, value, shape=None):
     try:
         arr = jnp.asarray(value)
@@ -28,6 +43,7 @@ def as_array(name, value, shape=None):
     return arr
 
 
+@_eager
 def check_finite(name, value):
     if is_concrete(value):
         for leaf in jax.tree_util.tree_leaves(value):
@@ -36,6 +52,7 @@ def check_finite(name, value):
     return value
 
 
+@_eager
 def check_positive_scalar(name, value):
     arr = as_array(name, value, ())
     if is_concrete(arr) and not (bool(jnp.isfinite(arr)) and float(arr) > 0):
@@ -55,6 +72,7 @@ def check_choice(name, value, choices):
     return value
 
 
+@_eager
 def check_on_group(name, group, g, tol=1e-6):
     if is_concrete(g):
         err = float(group.membership_error(g))
@@ -66,6 +84,7 @@ def check_on_group(name, group, g, tol=1e-6):
     return g
 
 
+@_eager
 def check_spd(name, value, tol=0.0):
     arr = as_array(name, value)
     if is_concrete(arr):
