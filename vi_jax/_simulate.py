@@ -84,7 +84,7 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
         val.check_finite("x0.qdot", x0.qdot)
     elif x0.q is not None or x0.qdot is not None:
         raise ValueError("x0: this system has no additional dynamics; expected x0.q = x0.qdot = None")
-    val.check_finite("system parameters", eqx.filter(system, eqx.is_inexact_array))
+    val.check_finite("system parameters", [x for x in jax.tree_util.tree_leaves(system) if eqx.is_inexact_array_like(x)])
     h = val.check_positive_scalar("h", h)
     n_steps = val.check_int("n_steps", n_steps, 1)
     save_every = val.check_int("save_every", save_every, 1)
@@ -250,7 +250,7 @@ def _check_failure(sol: Solution, save_every: int) -> Solution:
         if bool(jnp.any(failed)):
             k = int(np.argmax(np.asarray(failed)))
             code = int(sol.result[k])
-            steps = f"step {k}" if save_every == 1 else f"steps {(k - 1) * save_every}..{k * save_every - 1}"
+            steps = f"step {k - 1}" if save_every == 1 else f"steps {(k - 1) * save_every}..{k * save_every - 1}"
             raise NewtonFailure(
                 f"DEP step failed at {steps} (t ≈ {float(sol.t[k]):.6g}): {RESULT_MESSAGES.get(code, code)}; "
                 f"relative residual {float(sol.newton_residual[k]):.3g} after "

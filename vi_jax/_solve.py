@@ -100,10 +100,11 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
 
         r, scale, jac = value_and_jac(z_init)
         z = z_init
-        for _ in range(1 + chord_iterations):
+        n_chord = max(min(chord_iterations, max_iterations - 1), 0)
+        for _ in range(1 + n_chord):
             z = z - dense_solve(jac, r)
             r, scale = fn(z)
-        state = (jnp.asarray(1 + chord_iterations, jnp.int32), z, r, scale, jac)
+        state = (jnp.asarray(1 + n_chord, jnp.int32), z, r, scale, jac)
         state = jax.lax.cond(
             not_converged(r, scale), lambda s: jax.lax.while_loop(cond, body, s), lambda s: s, state
         )
@@ -112,9 +113,12 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
         rel = jnp.max(jnp.abs(r)) / jnp.where(scale > 0, scale, 1.0)
         finite = jnp.all(jnp.isfinite(z)) & jnp.all(jnp.isfinite(r))
         result = jnp.where(~finite, NONFINITE, jnp.where(rel <= rtol, SUCCESS, MAX_ITERATIONS))
-        return z, NewtonStats(i, rel, result.astype(jnp.int8))
+        # custom_root's JVP rule mishandles integer auxiliary outputs: carry them as floats.
+        return z, NewtonStats(i.astype(z.dtype), rel, result.astype(z.dtype))
 
     def tangent_solve(g, y):
         return dense_solve(jax.jacfwd(g)(jnp.zeros_like(y)), y)
 
-    return jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
+    z, stats = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
+    stats = NewtonStats(stats.iterations.astype(jnp.int32), stats.residual, stats.result.astype(jnp.int8))
+    return z, jax.lax.stop_gradient(stats)

@@ -26,7 +26,12 @@ def _eager(check):
 
 
 def _short(value) -> str:
-    text = np.array2string(np.asarray(value), precision=6, threshold=12) if np.ndim(value) else repr(value)
+    if np.ndim(value) == 0 and not isinstance(value, str):
+        try:
+            return f"{np.asarray(value).item()!r}"
+        except (TypeError, ValueError):
+            return repr(value)
+    text = np.array2string(np.asarray(value), precision=6, threshold=12)
     return text if len(text) < 200 else text[:197] + "..."
 
 

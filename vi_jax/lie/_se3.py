@@ -41,9 +41,8 @@ class SE3(AbstractMatrixGroup):
     def membership_error(self, g):
         R = g[:3, :3]
         bottom = g[3] - jnp.array([0, 0, 0, 1], g.dtype)
-        return jnp.sqrt(
-            jnp.sum((R.T @ R - jnp.eye(3, dtype=g.dtype)) ** 2) + jnp.sum(bottom**2)
-        )
+        orthogonality = jnp.sqrt(jnp.sum((R.T @ R - jnp.eye(3, dtype=g.dtype)) ** 2) + jnp.sum(bottom**2))
+        return orthogonality + jnp.abs(jnp.linalg.det(R) - 1)
 
     def inverse(self, g):
         R, r = g[:3, :3], g[:3, 3]

@@ -95,7 +95,8 @@ class SO3(AbstractMatrixGroup):
         return unskew3(X)
 
     def membership_error(self, g):
-        return jnp.linalg.norm(g.T @ g - jnp.eye(3, dtype=g.dtype))
+        """‖gᵀg − I‖_F + |det g − 1| (the determinant rules out reflections)."""
+        return jnp.linalg.norm(g.T @ g - jnp.eye(3, dtype=g.dtype)) + jnp.abs(jnp.linalg.det(g) - 1)
 
     def inverse(self, g):
         return g.T

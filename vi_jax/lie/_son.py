@@ -44,7 +44,8 @@ class SOn(AbstractMatrixGroup):
         return 0.5 * jnp.einsum("kij,ij->k", self._basis().astype(X.dtype), X)
 
     def membership_error(self, g):
-        return jnp.linalg.norm(g.T @ g - jnp.eye(self.n, dtype=g.dtype))
+        """‖gᵀg − I‖_F + |det g − 1| (the determinant rules out reflections)."""
+        return jnp.linalg.norm(g.T @ g - jnp.eye(self.n, dtype=g.dtype)) + jnp.abs(jnp.linalg.det(g) - 1)
 
     def inverse(self, g):
         return g.T
