@@ -84,7 +84,7 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
         val.check_finite("x0.qdot", x0.qdot)
     elif x0.q is not None or x0.qdot is not None:
         raise ValueError("x0: this system has no additional dynamics; expected x0.q = x0.qdot = None")
-    val.check_finite("system parameters", [x for x in jax.tree_util.tree_leaves(system) if eqx.is_inexact_array_like(x)])
+    val.check_finite("system parameters", val.numeric_leaves(system))
     h = val.check_positive_scalar("h", h)
     n_steps = val.check_int("n_steps", n_steps, 1)
     save_every = val.check_int("save_every", save_every, 1)
@@ -97,12 +97,13 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
 SAVE_BLOCK = 128  # saved nodes per inner scan (see _advance)
 
 
-def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter):
+def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter, checkpoint=False):
     """``length`` saved nodes of ``save_every`` steps each; returns (final state, saved states, stats).
 
     Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes): writing every
     step's state straight into one long output buffer costs XLA:CPU more than the step itself
-    (benchmarks/step_cost.py).
+    (benchmarks/step_cost.py). With ``checkpoint``, reverse mode stores only the state at block
+    boundaries (and at saved nodes) and recomputes the steps inside a block.
     """
 
     def one_step(state, _):
@@ -120,8 +121,14 @@ def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_
             stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
         return state, (state, stats)
 
+    if checkpoint:
+        node = jax.checkpoint(node)
+
     def block(state, _):
         return jax.lax.scan(node, state, None, length=SAVE_BLOCK)
+
+    if checkpoint:
+        block = jax.checkpoint(block)
 
     n_blocks, rest = divmod(length, SAVE_BLOCK)
     pieces = []
@@ -166,6 +173,7 @@ def simulate(
     rtol=None,
     max_newton_iterations: int = 20,
     progress: bool = False,
+    checkpoint: bool = False,
 ) -> Solution:
     """Integrate ``system`` from continuous initial data ``x0`` with the DEP scheme.
 
@@ -174,7 +182,9 @@ def simulate(
     The recursion starts from the continuous Legendre map (seed 000 spec §2). ``throw=True``
     raises :class:`NewtonFailure` (or an equinox runtime error under ``jit``) when a step fails;
     ``throw=False`` records it in ``Solution.result``. ``progress=True`` shows a progress bar
-    (outside ``jit`` only). Jittable, vmappable and differentiable (implicit-function gradients).
+    (outside ``jit`` only). Jittable, vmappable and differentiable (implicit-function gradients);
+    ``checkpoint=True`` makes reverse-mode memory grow with the number of saved nodes and blocks
+    rather than with the number of steps, at the price of recomputing the forward pass.
     """
     h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau, order, save_every)
     rule, gammas = composition_coefficients(order)
@@ -186,7 +196,10 @@ def simulate(
     cast = lambda x: None if x is None else jnp.asarray(x, dtype)  # noqa: E731
     x0 = State(cast(x0.g), cast(x0.xi), cast(x0.q), cast(x0.qdot))
     n_saved = n_steps // save_every
-    options = dict(tau=tau, rule=rule, gammas=gammas, save_every=save_every, rtol=rtol, max_iter=max_newton_iterations)
+    options = dict(
+        tau=tau, rule=rule, gammas=gammas, save_every=save_every, rtol=rtol,
+        max_iter=max_newton_iterations, checkpoint=bool(checkpoint),
+    )
     if progress and val.is_concrete((system, x0, h)):
         sol = _simulate_with_progress(system, x0, h, n_saved, **options)
     else:
@@ -216,13 +229,15 @@ def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
 
 
 @eqx.filter_jit
-def _simulate_jit(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter):
+def _simulate_jit(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter, checkpoint):
     state0 = legendre_initial_state(system, x0.g, x0.xi, x0.q, x0.qdot)
-    _, saved, stats = _advance(system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter)
+    _, saved, stats = _advance(
+        system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter, checkpoint
+    )
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
-def _simulate_with_progress(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter):
+def _simulate_with_progress(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter, checkpoint):
     """The same computation in ≤ 100 jitted pieces, with a tqdm bar between them."""
     from tqdm.auto import tqdm
 
@@ -234,7 +249,7 @@ def _simulate_with_progress(system, x0, h, n_saved, *, tau, rule, gammas, save_e
     with tqdm(total=n_saved * save_every, unit="step", desc="simulate") as bar:
         for size in sizes:
             state, saved, stats = _advance_jit(
-                system, tau, rule, gammas, h, state, size, save_every, rtol, max_iter
+                system, tau, rule, gammas, h, state, size, save_every, rtol, max_iter, checkpoint
             )
             saved_parts.append(saved)
             stats_parts.append(stats)

@@ -48,6 +48,14 @@ def as_array(name, value, shape=None):
     return arr
 
 
+def numeric_leaves(tree):
+    """The float leaves (arrays or Python floats) of a pytree."""
+    return [
+        leaf for leaf in jax.tree_util.tree_leaves(tree)
+        if isinstance(leaf, (float, np.ndarray, jax.Array)) and jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)
+    ]
+
+
 @_eager
 def check_finite(name, value):
     if is_concrete(value):
