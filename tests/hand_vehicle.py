@@ -127,3 +127,14 @@ def simulate_hand(params, R0, q0, omega0, v0, h, n_steps, tau="cayley", newton_i
 
 def vehicle_params(model):
     return (model.mass, model.added_mass, model.inertia, model.buoyancy, model.gravity, model.buoyancy_offset)
+
+
+def eq65(model, R, w, q, nu):
+    """The paper's continuous equations (65), written out by hand: (Ṙ, ω̇, q̇, ν̇)."""
+    m, MA, J, B, g, r = vehicle_params(model)
+    mass = m * jnp.eye(3) + MA
+    a = R.T @ E_Z
+    Mnu = mass @ nu
+    dw = jnp.linalg.solve(J, jnp.cross(J @ w, w) - B * jnp.cross(r, a) + jnp.cross(Mnu, nu))
+    dnu = jnp.linalg.solve(mass, (m * g - B) * a - jnp.cross(w, Mnu))
+    return R @ hat(w), dw, R @ nu, dnu

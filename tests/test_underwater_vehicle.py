@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import vi_jax as vj
-from hand_vehicle import simulate_hand, vehicle_params
+from hand_vehicle import eq65, simulate_hand, vehicle_params
 
 MODEL = vj.models.UnderwaterVehicle()
 X0 = MODEL.initial_state()
@@ -68,16 +68,9 @@ def test_bounded_motion_energy_has_no_drift():
 
 
 def _eq65(t, y, args):
-    """The paper's continuous equations (65), written out by hand."""
-    m, MA, J, B, g, r = vehicle_params(MODEL)
-    mass = m * jnp.eye(3) + MA
     R, q, w, nu = y[:9].reshape(3, 3), y[9:12], y[12:15], y[15:18]
-    a = R.T @ jnp.array([0.0, 0.0, 1.0])
-    Mnu = mass @ nu
-    dw = jnp.linalg.solve(J, jnp.cross(J @ w, w) - B * jnp.cross(r, a) + jnp.cross(Mnu, nu))
-    dnu = jnp.linalg.solve(mass, (m * g - B) * a - jnp.cross(w, Mnu))
-    W = jnp.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    return jnp.concatenate([(R @ W).ravel(), R @ nu, dw, dnu])
+    dR, dw, dq, dnu = eq65(MODEL, R, w, q, nu)
+    return jnp.concatenate([dR.ravel(), dq, dw, dnu])
 
 
 def reference_q(T):
