@@ -89,8 +89,11 @@ class AbstractMatrixGroup(eqx.Module):
         return self.vee(2 * jnp.linalg.solve((g + eye).T, (g - eye).T).T)
 
     def dcay_inv(self, x):
-        """dcay⁻¹_x (right trivialisation)."""
-        return jnp.linalg.inv(self.right_trivialised_tangent(self.cay, x))
+        """dcay⁻¹_x (right trivialisation): η ↦ vee((I − x̂/2) η̂ (I + x̂/2)), linear in η, so its
+        matrix comes from one ``jacfwd`` without a linear solve (seed 003 spec §2)."""
+        X = self.hat(x)
+        eye = jnp.eye(self.matrix_size, dtype=X.dtype)
+        return jax.jacfwd(lambda eta: self.vee((eye - X / 2) @ self.hat(eta) @ (eye + X / 2)))(jnp.zeros_like(x))
 
     def exp(self, x):
         return jax.scipy.linalg.expm(self.hat(x))
