@@ -88,7 +88,9 @@ def test_newton_failure_raises_with_step_and_is_flagged_without_throw():
         simulate(max_newton_iterations=1, rtol=1e-30)
     sol = simulate(max_newton_iterations=1, rtol=1e-30, throw=False)
     assert not bool(sol.succeeded)
-    assert np.all(np.asarray(sol.result[1:]) == 1)
+    assert int(sol.result[1]) == 1  # the failing step: Newton's iteration budget
+    assert np.all(np.asarray(sol.result[2:]) == 2)  # nothing continues from an unsolved state
+    assert np.all(np.isnan(np.asarray(sol.q[1:])))
 
 
 def test_exp_singular_set_is_reported():

@@ -107,7 +107,11 @@ def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_
     """
 
     def sub_step(state, gamma):
-        return dep_step(system, tau, rule, gamma * h, state, rtol=rtol, max_iterations=max_iter)
+        new, stats = dep_step(system, tau, rule, gamma * h, state, rtol=rtol, max_iterations=max_iter)
+        # After a failed step the state is NaN (and every later step reports NONFINITE): a
+        # partial Solution never continues from a state that did not solve the equations.
+        failed = stats.result != SUCCESS
+        return jax.tree.map(lambda x: jnp.where(failed, jnp.nan, x), new), stats
 
     def one_step(state, _):
         if len(gammas) == 1:
