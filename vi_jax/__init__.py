@@ -1,6 +1,6 @@
 """vi_jax: differentiable Lie-group variational integrators in JAX."""
 
-from . import continuous as continuous, discrete as discrete, lie as lie, models as models
+from . import continuous as continuous, discrete as discrete, lie as lie, models as models, multisymplectic as multisymplectic
 from ._diagnostics import (
     group_constraint_residual as group_constraint_residual,
     kelvin_noether as kelvin_noether,

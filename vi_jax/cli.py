@@ -1,9 +1,12 @@
 """The ``vi-jax`` command line.
 
   vi-jax simulate underwater --tau cayley --h 0.01 --steps 50000 --out DIR
+  vi-jax simulate beam [--scenario free|clamped|paper] --out DIR
+  vi-jax compare [--quick] --out DIR
 
-writes ``DIR/trajectory.npz`` (t, R, q, omega, nu, energy, kelvin_noether; leading axis = time)
-and PNG plots. Bad input is reported in one line with a non-zero exit status.
+``simulate underwater`` writes ``DIR/trajectory.npz`` (t, R, q, omega, nu, energy,
+kelvin_noether; leading axis = time) and PNG plots. Bad input is reported in one line with a
+non-zero exit status.
 """
 
 import argparse
@@ -11,11 +14,7 @@ import sys
 from pathlib import Path
 
 
-def _parser():
-    parser = argparse.ArgumentParser(prog="vi-jax", description="Lie-group variational integrators in JAX")
-    commands = parser.add_subparsers(dest="command", required=True)
-    sim = commands.add_parser("simulate", help="integrate a shipped model and write data and plots")
-    sim.add_argument("model", choices=["underwater"], help="which model")
+def _add_underwater_arguments(sim):
     sim.add_argument("--tau", default="cayley", choices=["cayley", "exp"], help="group difference map")
     sim.add_argument("--order", type=int, default=1, choices=[1, 2, 4, 6], help="1 = the paper's rule (eq. 71)")
     sim.add_argument("--h", type=float, default=0.01, help="time step [s]")
@@ -24,6 +23,25 @@ def _parser():
     sim.add_argument("--float32", action="store_true", help="run in float32 (default float64)")
     sim.add_argument("--out", type=Path, default=Path("out/underwater"), help="output directory")
     sim.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _parser():
+    from ._compare import add_compare_arguments, run_compare
+    from .multisymplectic._cli import add_beam_arguments, run_beam
+
+    parser = argparse.ArgumentParser(prog="vi-jax", description="Lie-group variational integrators in JAX")
+    commands = parser.add_subparsers(dest="command", required=True)
+    simulate = commands.add_parser("simulate", help="integrate a shipped model and write data and plots")
+    models = simulate.add_subparsers(dest="model", required=True)
+    underwater = models.add_parser("underwater", help="the underwater vehicle of seed 000 (the paper's run by default)")
+    _add_underwater_arguments(underwater)
+    underwater.set_defaults(run=_simulate_underwater)
+    beam = models.add_parser("beam", help="the geometrically exact beam of seed 003")
+    add_beam_arguments(beam)
+    beam.set_defaults(run=run_beam)
+    compare = commands.add_parser("compare", help="error against run time: vi_jax schemes and diffrax solvers")
+    add_compare_arguments(compare)
+    compare.set_defaults(run=run_compare)
     return parser
 
 
@@ -60,8 +78,7 @@ def _simulate_underwater(args):
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
-        if args.command == "simulate":
-            _simulate_underwater(args)
+        args.run(args)
     except ValueError as err:
         print(f"vi-jax: error: {err}", file=sys.stderr)
         return 2

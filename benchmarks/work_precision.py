@@ -1,0 +1,14 @@
+"""Error against compiled run time: every vi_jax scheme against diffrax's solvers on the
+underwater vehicle and the heavy top (work precision at T = 50 s), a long-horizon run on a
+bounded motion (energy, Kelvin–Noether and group-constraint drift) and energy error against
+time. The measurement lives in ``vi_jax/_compare.py`` (also ``vi-jax compare``).
+
+    python benchmarks/work_precision.py [--quick] [--repeats 5] [--out DIR] [--no-progress]
+"""
+
+import argparse
+
+from vi_jax._compare import add_compare_arguments, run_compare
+
+if __name__ == "__main__":
+    run_compare(add_compare_arguments(argparse.ArgumentParser(description=__doc__.splitlines()[0])).parse_args())

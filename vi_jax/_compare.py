@@ -1,0 +1,602 @@
+"""Error against compiled run time: vi_jax's variational schemes against diffrax's solvers on the
+same continuous Euler–Poincaré equations (``vi-jax compare``, ``benchmarks/work_precision.py``).
+
+All peers are measured in one process: every program is compiled ahead of time (compile time
+reported separately), run once as a warm-up, then timed in ``repeats`` interleaved rounds
+(median reported). The model and initial state are arguments of every program, never
+closed-over constants. Three results:
+
+* work precision: relative final-state error at ``T`` against a Dopri8 reference at the
+  tightest tolerance, against median run time;
+* long horizon, on a bounded motion: maximum relative energy error, Kelvin–Noether drift and
+  group-constraint drift ‖RᵀR − I‖, against run time;
+* energy error against time for a representative setting of each peer.
+"""
+
+import dataclasses
+import json
+import math
+import statistics
+import time
+from pathlib import Path
+from typing import ClassVar
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import continuous
+from ._diagnostics import group_constraint_residual
+from ._simulate import simulate
+from .models import HeavyTop, UnderwaterVehicle
+
+
+class RK4(diffrax.AbstractERK):
+    """The classical fourth-order Runge–Kutta method (diffrax 0.7 ships none); fixed steps only."""
+
+    tableau: ClassVar[diffrax.ButcherTableau] = diffrax.ButcherTableau(
+        a_lower=(np.array([0.5]), np.array([0.0, 0.5]), np.array([0.0, 0.0, 1.0])),
+        b_sol=np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6]),
+        b_error=np.zeros(4),
+        c=np.array([0.5, 0.5, 1.0]),
+    )
+    interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation.from_k
+
+    def order(self, terms):
+        return 4
+
+
+def _neutral_vehicle():
+    default = UnderwaterVehicle()
+    return UnderwaterVehicle(buoyancy=default.mass * default.gravity)
+
+
+SYSTEMS = {
+    "vehicle": ("underwater vehicle (seed 000 Tables 1–2, slightly buoyant)", UnderwaterVehicle),
+    "vehicle_neutral": ("underwater vehicle at neutral buoyancy (B = mg), Table 2 initial state", _neutral_vehicle),
+    "heavy_top": ("heavy top (HeavyTop defaults, spin 6 rad/s)", HeavyTop),
+}
+ADAPTIVE = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8, "kvaerno5": diffrax.Kvaerno5}
+SOLVER_NAMES = {"tsit5": "Tsit5", "dopri5": "Dopri5", "dopri8": "Dopri8", "kvaerno5": "Kvaerno5", "rk4": "RK4"}
+REFERENCE_RTOL = 1e-14  # Dopri8, rtol = atol: the tightest tolerance
+MAX_STEPS = 50_000_000
+ACCURACIES = tuple(10.0**-k for k in range(3, 11))  # the work-precision goal's range
+GOAL_SPEED_RATIO = 1.5
+GOAL_ENERGY_RATIO = 100.0
+ROUND_OFF = 1e-12  # Kelvin–Noether drift / scale counted as round-off
+
+
+@dataclasses.dataclass(frozen=True)
+class Study:
+    """Sizes of one study (``QUICK`` and ``FULL`` are the presets).
+
+    ``steps[system][order]``: vi_jax step counts on [0, T] (RK4 runs at all of them);
+    ``tolerances[solver]``: rtol = atol of the adaptive diffrax solvers; ``long_*``: the
+    long-horizon run (vi_jax and RK4 take ``long_steps`` steps, ``n_save`` + 1 saved nodes).
+    """
+
+    systems: tuple
+    T: float
+    schemes: tuple
+    steps: dict
+    tolerances: dict
+    long_system: str
+    long_T: float
+    long_steps: int
+    long_schemes: tuple
+    long_tolerances: dict
+    n_save: int
+    repeats: int = 5
+
+
+_ALL_SCHEMES = tuple((tau, order) for tau in ("cayley", "exp") for order in (1, 2, 4, 6))
+_DECADES = lambda lo, hi: tuple(10.0**-k for k in range(lo, hi + 1))  # noqa: E731
+
+FULL = Study(
+    systems=("vehicle", "heavy_top"),
+    T=50.0,
+    schemes=_ALL_SCHEMES,
+    steps={
+        "vehicle": {1: (1000, 4000, 16000), 2: (1000, 4000, 16000), 4: (400, 1600, 6400), 6: (100, 300, 1500)},
+        "heavy_top": {1: (4000, 16000, 64000), 2: (4000, 16000, 64000), 4: (2000, 5000, 16000), 6: (1000, 3000, 12000)},
+    },
+    tolerances={"tsit5": _DECADES(3, 13), "dopri5": _DECADES(3, 13), "dopri8": _DECADES(3, 13), "kvaerno5": _DECADES(3, 10)},
+    long_system="vehicle_neutral",
+    long_T=20_000.0,
+    long_steps=1_000_000,
+    long_schemes=(("cayley", 1), ("cayley", 2), ("cayley", 4)),
+    long_tolerances={"tsit5": (1e-6, 1e-9, 1e-12), "dopri8": (1e-8, 1e-11, 1e-14)},
+    n_save=400,
+)
+
+QUICK = Study(
+    systems=("vehicle",),
+    T=50.0,
+    schemes=(("cayley", 2), ("cayley", 4)),
+    steps={"vehicle": {2: (1000,), 4: (400, 1600)}},
+    tolerances={"tsit5": (1e-4, 1e-7, 1e-10), "dopri5": (1e-4, 1e-7, 1e-10), "dopri8": (1e-4, 1e-7, 1e-10, 1e-13), "kvaerno5": (1e-4, 1e-7)},
+    long_system="vehicle_neutral",
+    long_T=400.0,
+    long_steps=20_000,
+    long_schemes=(("cayley", 2),),
+    long_tolerances={"tsit5": (1e-6, 1e-9), "dopri8": (1e-8, 1e-11)},
+    n_save=100,
+)
+
+
+# ----------------------------------------------------------------------------- programs
+
+
+def _vi_jax_program(tau, order, n_steps, n_saved):
+    save_every = n_steps // n_saved
+
+    def run(system, x0, h):
+        return simulate(system, x0, h, n_steps, tau=tau, order=order, save_every=save_every, throw=False)
+
+    return jax.jit(run)
+
+
+def _diffrax_program(solver, n_saved):
+    """diffrax on the continuous EP field; ``control`` is rtol = atol (adaptive, PID controller
+    with diffrax's default coefficients) or the step (RK4, constant step size)."""
+
+    def run(system, y0, t1, control):
+        if solver == "rk4":
+            method, controller, dt0 = RK4(), diffrax.ConstantStepSize(), control
+        else:
+            method, controller, dt0 = ADAPTIVE[solver](), diffrax.PIDController(rtol=control, atol=control), None
+        interior = jnp.linspace(0.0, t1, n_saved + 1)[1:-1] if n_saved > 1 else None
+        sol = diffrax.diffeqsolve(
+            continuous.vector_field(system), method, 0.0, t1, dt0, y0, stepsize_controller=controller,
+            saveat=diffrax.SaveAt(t0=True, t1=True, ts=interior), max_steps=MAX_STEPS, throw=False,
+        )
+        return sol.ys, sol.stats["num_steps"], sol.result == diffrax.RESULTS.successful
+
+    return jax.jit(run)
+
+
+@dataclasses.dataclass
+class Run:
+    """One timed configuration: ``program`` (a key into the compiled-program cache and its
+    builder) applied to ``args``; measurements are filled in by :func:`measure`."""
+
+    section: str  # "work_precision" or "long_horizon"
+    system: str
+    peer: str
+    setting: dict
+    key: tuple
+    build: object
+    args: tuple
+    compile_s: float = math.nan
+    first_s: float = math.nan
+    samples: list = dataclasses.field(default_factory=list)
+    output: object = None
+
+    @property
+    def label(self):
+        return f"{self.system}: {self.peer} {_setting_text(self.setting)}"
+
+
+def _setting_text(setting):
+    return ", ".join(f"{k}={v:g}" for k, v in setting.items())
+
+
+def _vi_jax_peer(tau, order):
+    return f"vi_jax {tau} order {order}"
+
+
+def _diffrax_peer(solver):
+    return f"diffrax {SOLVER_NAMES[solver]}" + (" (fixed step)" if solver == "rk4" else " (PID)")
+
+
+def _vi_jax_run(section, name, system, x0, tau, order, T, n_steps, n_saved):
+    return Run(
+        section, name, _vi_jax_peer(tau, order), {"n_steps": n_steps, "h": T / n_steps},
+        ("vi_jax", type(system).__name__, tau, order, n_steps, n_saved),
+        lambda: _vi_jax_program(tau, order, n_steps, n_saved), (system, x0, jnp.asarray(T / n_steps)),
+    )
+
+
+def _diffrax_run(section, name, system, x0, solver, T, control, n_saved):
+    setting = {"n_steps": round(T / control), "h": control} if solver == "rk4" else {"rtol": control}
+    return Run(
+        section, name, _diffrax_peer(solver), setting, ("diffrax", type(system).__name__, solver, n_saved),
+        lambda: _diffrax_program(solver, n_saved),
+        (system, continuous.initial_state(system, x0), jnp.asarray(T), jnp.asarray(control)),
+    )
+
+
+def build_runs(study: Study):
+    """Every timed configuration of ``study`` (work precision, then long horizon)."""
+    runs = []
+    for name in study.systems:
+        system = SYSTEMS[name][1]()
+        x0 = system.initial_state()
+        all_steps = set()
+        for tau, order in study.schemes:
+            for n in study.steps[name][order]:
+                runs.append(_vi_jax_run("work_precision", name, system, x0, tau, order, study.T, n, 1))
+                all_steps.add(n)
+        for solver, rtols in study.tolerances.items():
+            runs += [_diffrax_run("work_precision", name, system, x0, solver, study.T, r, 1) for r in rtols]
+        runs += [_diffrax_run("work_precision", name, system, x0, "rk4", study.T, study.T / n, 1) for n in sorted(all_steps)]
+    name = study.long_system
+    system = SYSTEMS[name][1]()
+    x0 = system.initial_state()
+    for tau, order in study.long_schemes:
+        runs.append(_vi_jax_run("long_horizon", name, system, x0, tau, order, study.long_T, study.long_steps, study.n_save))
+    for solver, rtols in study.long_tolerances.items():
+        runs += [_diffrax_run("long_horizon", name, system, x0, solver, study.long_T, r, study.n_save) for r in rtols]
+    runs.append(_diffrax_run("long_horizon", name, system, x0, "rk4", study.long_T, study.long_T / study.long_steps, study.n_save))
+    return runs
+
+
+def _compiled(cache, run):
+    """The compiled program of ``run`` (compiled once per key; compile time recorded)."""
+    if run.key not in cache:
+        start = time.perf_counter()
+        exe = run.build().lower(*run.args).compile()
+        cache[run.key] = (exe, time.perf_counter() - start)
+    return cache[run.key]
+
+
+def measure(runs, repeats, *, progress=True, cache=None):
+    """Compile, warm up, then time every run in ``repeats`` interleaved rounds (in place)."""
+    from tqdm.auto import tqdm
+
+    cache = {} if cache is None else cache
+    with tqdm(total=len(runs) * (1 + repeats), desc="configurations", unit="run", disable=not progress) as bar:
+        for run in runs:
+            bar.set_postfix_str(f"compile + warm-up {run.label}", refresh=False)
+            exe, run.compile_s = _compiled(cache, run)
+            start = time.perf_counter()
+            run.output = jax.device_get(jax.block_until_ready(exe(*run.args)))
+            run.first_s = time.perf_counter() - start
+            bar.update()
+        for k in range(repeats):
+            bar.set_postfix_str(f"timing round {k + 1}/{repeats}", refresh=False)
+            for run in runs:
+                exe = cache[run.key][0]
+                start = time.perf_counter()
+                jax.block_until_ready(exe(*run.args))
+                run.samples.append(time.perf_counter() - start)
+                bar.update()
+    return runs
+
+
+# ----------------------------------------------------------------------------- analysis
+
+
+def _trajectory(run):
+    """(y = (g, ξ, q, ν) with a leading node axis, steps taken, succeeded) of a finished run."""
+    if run.peer.startswith("vi_jax"):
+        sol = run.output
+        return (sol.g, sol.xi, sol.q, sol.nu), run.setting["n_steps"], bool(np.all(sol.result == 0))
+    ys, n_steps, ok = run.output
+    return ys, int(n_steps), bool(ok)
+
+
+def _relative_error(y, ref):
+    """max over the state's parts (R, ω, q, ν) of ‖Δ‖∞ / ‖reference‖∞ at the final node."""
+    return max(float(np.max(np.abs(a[-1] - b)) / np.max(np.abs(b))) for a, b in zip(y, ref) if b is not None)
+
+
+def _invariants(run, system):
+    """(t, |E/E₀ − 1|, |I − I₀| / max scale, ‖g − G‖) at the saved nodes."""
+    if run.peer.startswith("vi_jax"):
+        sol = run.output
+        t, energy, kn, scale, g = sol.t, sol.energy, sol.kelvin_noether, sol.kelvin_noether_scale, sol.g
+    else:
+        ys = jax.tree.map(jnp.asarray, run.output[0])
+        t = np.linspace(0.0, float(run.args[2]), ys[0].shape[0])
+        energy = continuous.energy(system, ys)
+        kn = continuous.kelvin_noether(system, ys)
+        scale = continuous.kelvin_noether_scale(system, ys)
+        g = ys[0]
+    energy, kn = np.asarray(energy), np.asarray(kn)
+    kn = kn.reshape(kn.shape[0], -1)
+    return (
+        np.asarray(t),
+        np.abs(energy / energy[0] - 1.0),
+        np.max(np.abs(kn - kn[0]), axis=-1) / np.max(np.asarray(scale)),
+        np.asarray(group_constraint_residual(system, jnp.asarray(g))),
+    )
+
+
+def _row(run, **values):
+    nan_to_none = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    row = dict(run.setting)
+    row.update(
+        compile_s=run.compile_s, first_s=run.first_s, median_s=statistics.median(run.samples),
+        samples_s=run.samples, **{k: nan_to_none(v) for k, v in values.items()},
+    )
+    return row
+
+
+def _time_to_reach(rows, eps):
+    """Run time at which one peer's work-precision curve reaches error ``eps``: log-log
+    interpolation along its Pareto front (runs sorted by time, each more accurate than all
+    cheaper ones); None if no run is that accurate."""
+    front = []
+    for t, e in sorted((r["median_s"], r["error"]) for r in rows if r["error"] is not None):
+        if not front or e < front[-1][1]:
+            front.append((t, e))
+    if not front or front[-1][1] > eps:
+        return None
+    if front[0][1] <= eps:
+        return front[0][0]
+    for (t0, e0), (t1, e1) in zip(front, front[1:]):
+        if e1 <= eps:
+            w = math.log(eps / e0) / math.log(e1 / e0)
+            return math.exp(math.log(t0) + w * math.log(t1 / t0))
+
+
+def _fastest(peers, prefix, eps):
+    times = {p: _time_to_reach(rows, eps) for p, rows in peers.items() if p.startswith(prefix)}
+    times = {p: t for p, t in times.items() if t is not None}
+    if not times:
+        return None, None
+    best = min(times, key=times.get)
+    return best, times[best]
+
+
+def _work_precision_goal(peers):
+    rows, met = [], True
+    for eps in ACCURACIES:
+        vi_peer, vi_t = _fastest(peers, "vi_jax", eps)
+        dx_peer, dx_t = _fastest(peers, "diffrax", eps)
+        ratio = vi_t / dx_t if vi_t is not None and dx_t is not None else None
+        met = met and ratio is not None and ratio <= GOAL_SPEED_RATIO
+        rows.append(dict(accuracy=eps, vi_jax=vi_peer, vi_jax_s=vi_t, diffrax=dx_peer, diffrax_s=dx_t, ratio=ratio))
+    return {"criterion": f"fastest vi_jax ≤ {GOAL_SPEED_RATIO}× fastest diffrax at every accuracy 1e-3 … 1e-10", "met": met, "accuracies": rows}
+
+
+def _long_horizon_goal(peers):
+    diffrax_rows = [r for p, rows in peers.items() if p.startswith("diffrax") for r in rows]
+    rows = []
+    for peer, (row,) in ((p, r) for p, r in peers.items() if p.startswith("vi_jax")):
+        within = [r for r in diffrax_rows if r["median_s"] <= row["median_s"]]
+        best = min((r["energy_error"] for r in within), default=None)
+        ratio = best / row["energy_error"] if best is not None else None
+        rows.append(dict(
+            peer=peer, median_s=row["median_s"], energy_error=row["energy_error"],
+            best_diffrax_energy_error_within_time=best, ratio=ratio,
+            energy_met=ratio is not None and ratio >= GOAL_ENERGY_RATIO,
+            kelvin_noether_error=row["kelvin_noether_error"], kelvin_noether_met=row["kelvin_noether_error"] <= ROUND_OFF,
+        ))
+    return {
+        "criterion": f"vi_jax energy error ≥ {GOAL_ENERGY_RATIO:g}× smaller than the best diffrax run that takes "
+        f"at most as long, and Kelvin–Noether drift / scale ≤ {ROUND_OFF:g}",
+        "met": any(r["energy_met"] for r in rows) and all(r["kelvin_noether_met"] for r in rows),
+        "schemes": rows,
+    }
+
+
+def _reference(name, system, x0, T, cache):
+    """Dopri8 at rtol = atol = REFERENCE_RTOL, and its difference from the run at 10× that."""
+    finals = []
+    for rtol in (REFERENCE_RTOL, 10 * REFERENCE_RTOL):
+        run = _diffrax_run("reference", name, system, x0, "dopri8", T, rtol, 1)
+        ys, _, ok = jax.device_get(_compiled(cache, run)[0](*run.args))
+        if not ok:
+            raise RuntimeError(f"reference solve failed for {name}")
+        finals.append(ys)
+    ref = tuple(None if a is None else a[-1] for a in finals[0])
+    return ref, _relative_error(finals[1], ref)
+
+
+def summarise(study: Study, runs, cache):
+    """The JSON-ready result of measured ``runs``."""
+    result = {"work_precision": {}, "long_horizon": {}}
+    for name in study.systems:
+        system = SYSTEMS[name][1]()
+        ref, check = _reference(name, system, system.initial_state(), study.T, cache)
+        peers = {}
+        for run in (r for r in runs if r.section == "work_precision" and r.system == name):
+            y, n_steps, ok = _trajectory(run)
+            peers.setdefault(run.peer, []).append(_row(
+                run, steps_taken=n_steps, succeeded=ok, error=_relative_error(y, ref) if ok else None,
+            ))
+        result["work_precision"][name] = {
+            "system": SYSTEMS[name][0], "T": study.T,
+            "error": "max over (R, ω, q, ν) of ‖Δ‖∞ / ‖reference‖∞ at T",
+            "reference": {"solver": "diffrax Dopri8, PID", "rtol": REFERENCE_RTOL, "atol": REFERENCE_RTOL,
+                          "difference_from_rtol_10x": check},
+            "peers": peers, "goal": _work_precision_goal(peers),
+        }
+    name = study.long_system
+    system = SYSTEMS[name][1]()
+    peers, series = {}, {}
+    for run in (r for r in runs if r.section == "long_horizon"):
+        _, n_steps, ok = _trajectory(run)
+        t, energy, kn, group = _invariants(run, system)
+        peers.setdefault(run.peer, []).append(_row(
+            run, steps_taken=n_steps, succeeded=ok, energy_error=float(np.max(energy)),
+            kelvin_noether_error=float(np.max(kn)), group_drift=float(np.max(group)),
+        ))
+        series.setdefault(run.peer, []).append((_setting_text(run.setting), t, energy))
+    result["long_horizon"] = {
+        "system": SYSTEMS[name][0], "T": study.long_T, "vi_jax_steps": study.long_steps, "saved_nodes": study.n_save + 1,
+        "energy_error": "max over saved nodes of |E/E₀ − 1|",
+        "kelvin_noether_error": "max over saved nodes of |I − I₀| / max(|μ| + |p||n|)",
+        "group_drift": "max over saved nodes of ‖RᵀR − I‖_F",
+        "peers": peers, "goal": _long_horizon_goal(peers),
+        "energy_vs_time": _representatives(peers, series),
+    }
+    return result
+
+
+def _representatives(peers, series):
+    """Per peer, the long-horizon run whose time is closest (in log) to the median vi_jax time."""
+    vi_times = [r["median_s"] for p, rows in peers.items() if p.startswith("vi_jax") for r in rows]
+    target = statistics.median(vi_times) if vi_times else 1.0
+    out = {}
+    for peer, rows in peers.items():
+        i = min(range(len(rows)), key=lambda k: abs(math.log(rows[k]["median_s"] / target)))
+        setting, t, energy = series[peer][i]
+        out[peer] = {"setting": setting, "t": t[1:].tolist(), "energy_error": energy[1:].tolist()}
+    return out
+
+
+# ----------------------------------------------------------------------------- plots
+
+
+def _style(peer):
+    """vi_jax: solid, colour by order, marker by τ; diffrax: dashed, grey-blue family."""
+    if peer.startswith("vi_jax"):
+        _, tau, _, order = peer.split()
+        colour = {"1": "tab:red", "2": "tab:orange", "4": "tab:green", "6": "tab:purple"}[order]
+        return dict(color=colour, ls="-", marker="o" if tau == "cayley" else "s", mfc="none" if tau == "exp" else colour)
+    colour = {"Tsit5": "tab:blue", "Dopri5": "tab:cyan", "Dopri8": "navy", "Kvaerno5": "tab:brown", "RK4": "black"}[peer.split()[1]]
+    return dict(color=colour, ls="--", marker="^" if "PID" in peer else "x")
+
+
+def _plot_curves(ax, peers, key):
+    for peer, rows in peers.items():
+        pts = sorted((r["median_s"], r[key]) for r in rows if r[key] is not None)
+        if pts:
+            ax.loglog(*zip(*pts), ms=4, lw=1, label=peer, **_style(peer))
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_xlabel("compiled run time [s] (median)")
+
+
+def plot_work_precision(result, path):
+    import matplotlib.pyplot as plt
+
+    systems = result["work_precision"]
+    fig, axes = plt.subplots(1, len(systems), figsize=(7.5 * len(systems), 5.5), squeeze=False)
+    for ax, (name, data) in zip(axes[0], systems.items()):
+        _plot_curves(ax, data["peers"], "error")
+        ax.axhspan(min(ACCURACIES), max(ACCURACIES), color="0.9", zorder=0)
+        ax.set_ylabel("relative final-state error at T")
+        ax.set_title(f"{data['system']}, T = {data['T']:g} s", fontsize=9)
+        ax.legend(fontsize=6.5, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_long_horizon(result, path):
+    import matplotlib.pyplot as plt
+
+    data = result["long_horizon"]
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5))
+    labels = (("energy_error", "max |E/E₀ − 1|"), ("kelvin_noether_error", "max |I − I₀| / scale"), ("group_drift", "max ‖RᵀR − I‖"))
+    for ax, (key, ylabel) in zip(axes, labels):
+        _plot_curves(ax, data["peers"], key)
+        ax.set_ylabel(ylabel)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"{data['system']}, T = {data['T']:g} s ({data['vi_jax_steps']:,} steps for vi_jax and RK4)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_energy_vs_time(result, path):
+    import matplotlib.pyplot as plt
+
+    data = result["long_horizon"]
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    for peer, s in data["energy_vs_time"].items():
+        style = _style(peer)
+        style.pop("marker"), style.pop("mfc", None)
+        running_max = np.maximum.accumulate(np.maximum(s["energy_error"], 1e-17))
+        ax.loglog(s["t"], running_max, lw=1.2, label=f"{peer} ({s['setting']})", **style)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("max over [0, t] of |E/E₀ − 1| (saved nodes)")
+    ax.set_title(f"{data['system']}: energy error along the run", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- tables
+
+
+def _fmt(x, spec=".2e"):
+    return "—" if x is None else format(x, spec)
+
+
+def format_tables(result):
+    """Plain-text tables of a result (what the command prints)."""
+    lines = []
+    for name, data in result["work_precision"].items():
+        lines += [f"\nwork precision — {data['system']}, T = {data['T']:g} s (reference check "
+                  f"{data['reference']['difference_from_rtol_10x']:.1e})",
+                  f"{'peer':32s} {'setting':>24s} {'compile [s]':>11s} {'median [s]':>11s} {'error':>9s}"]
+        for peer, rows in data["peers"].items():
+            for r in rows:
+                setting = f"N={r['n_steps']}" if "n_steps" in r else f"rtol={r['rtol']:.0e}"
+                lines.append(f"{peer:32s} {setting:>24s} {r['compile_s']:11.2f} {r['median_s']:11.5f} {_fmt(r['error']):>9s}")
+        goal = data["goal"]
+        lines.append(f"goal ({goal['criterion']}): {'met' if goal['met'] else 'NOT met'}")
+        for g in goal["accuracies"]:
+            lines.append(f"  {g['accuracy']:.0e}: vi_jax {_fmt(g['vi_jax_s'], '.4f')} s ({g['vi_jax']}), "
+                         f"diffrax {_fmt(g['diffrax_s'], '.4f')} s ({g['diffrax']}), ratio {_fmt(g['ratio'], '.1f')}")
+    data = result["long_horizon"]
+    lines += [f"\nlong horizon — {data['system']}, T = {data['T']:g} s",
+              f"{'peer':32s} {'setting':>14s} {'median [s]':>11s} {'max dE/E':>9s} {'KN/scale':>9s} {'‖RᵀR−I‖':>9s}"]
+    for peer, rows in data["peers"].items():
+        for r in rows:
+            setting = f"N={r['n_steps']}" if "n_steps" in r else f"rtol={r['rtol']:.0e}"
+            lines.append(f"{peer:32s} {setting:>14s} {r['median_s']:11.3f} {_fmt(r['energy_error']):>9s} "
+                         f"{_fmt(r['kelvin_noether_error']):>9s} {_fmt(r['group_drift']):>9s}")
+    goal = data["goal"]
+    lines.append(f"goal ({goal['criterion']}): {'met' if goal['met'] else 'NOT met'}")
+    for g in goal["schemes"]:
+        lines.append(f"  {g['peer']}: {g['energy_error']:.2e} in {g['median_s']:.2f} s; best diffrax within that "
+                     f"time {_fmt(g['best_diffrax_energy_error_within_time'])} (ratio {_fmt(g['ratio'], '.2g')}); "
+                     f"KN/scale {g['kelvin_noether_error']:.1e}")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- entry points
+
+
+def run_study(study: Study, out, *, progress=True, command=None):
+    """Measure ``study``, write ``out``/work_precision.json and the three PNGs; return the result."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    cache = {}
+    runs = measure(build_runs(study), study.repeats, progress=progress, cache=cache)
+    result = summarise(study, runs, cache)
+    result["meta"] = {
+        "command": command, "repeats": study.repeats, "wall_s": time.perf_counter() - start,
+        "jax": jax.__version__, "diffrax": diffrax.__version__, "devices": str(jax.devices()),
+        "timing": "compiled code only: ahead-of-time compile (compile_s), one warm-up run (first_s), "
+        "then repeats in interleaved rounds (samples_s, median_s); diffrax programs take rtol or the "
+        "step as an argument, so one compile serves all settings of a solver",
+    }
+    (out / "work_precision.json").write_text(json.dumps(result, indent=1))
+    for plot, name in ((plot_work_precision, "work_precision.png"), (plot_long_horizon, "long_horizon.png"),
+                       (plot_energy_vs_time, "energy_vs_time.png")):
+        plot(result, out / name)
+    return result
+
+
+def add_compare_arguments(parser):
+    """The options of ``vi-jax compare`` (and ``benchmarks/work_precision.py``)."""
+    parser.add_argument("--quick", action="store_true", help="small sizes (about 1–2 min) instead of the full study")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median reported; ≥ 5)")
+    parser.add_argument("--out", type=Path, default=Path("out/compare"), help="directory for work_precision.json and PNGs")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    return parser
+
+
+def run_compare(args):
+    """Run the study chosen by ``args`` (see :func:`add_compare_arguments`), print the tables."""
+    import sys
+
+    jax.config.update("jax_enable_x64", True)
+    if args.repeats < 5:
+        raise ValueError(f"--repeats: expected at least 5 (median of ≥ 5 timed runs), got {args.repeats}")
+    study = dataclasses.replace(QUICK if args.quick else FULL, repeats=args.repeats)
+    result = run_study(study, args.out, progress=not args.no_progress, command=" ".join(sys.argv))
+    print(format_tables(result))
+    print(f"\nwrote {args.out / 'work_precision.json'} and work_precision.png, long_horizon.png, energy_vs_time.png "
+          f"({result['meta']['wall_s']:.0f} s)")
+    return result
