@@ -1,6 +1,8 @@
 """``simulate``: the DEP one-step map scanned over time, with per-step Newton statistics,
 node diagnostics and an optional progress bar."""
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -103,7 +105,9 @@ def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_
     Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes): writing every
     step's state straight into one long output buffer costs XLA:CPU more than the step itself
     (benchmarks/step_cost.py). With ``checkpoint``, reverse mode stores only the state at block
-    boundaries (and at saved nodes) and recomputes the steps inside a block.
+    boundaries (and at saved nodes) and recomputes the steps inside a block; the steps between
+    two saved nodes run as √save_every rematerialised blocks, so memory grows like
+    n/(SAVE_BLOCK·save_every) + SAVE_BLOCK + √save_every states (benchmarks/gradients.py).
     """
 
     def sub_step(state, gamma):
@@ -120,12 +124,25 @@ def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_
         state, stats = jax.lax.scan(sub_step, state, jnp.asarray(gammas, h.dtype))
         return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
 
+    def steps(state, n):
+        state, stats = jax.lax.scan(one_step, state, None, length=n)
+        return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+
+    def node_steps(state):
+        if not checkpoint or save_every <= SAVE_BLOCK:
+            return steps(state, save_every)
+        # √save_every rematerialised blocks: reverse mode stores O(√save_every) step residuals.
+        inner = math.isqrt(save_every)
+        outer, rest = divmod(save_every, inner)
+        state, stats = jax.lax.scan(jax.checkpoint(lambda s, _: steps(s, inner)), state, None, length=outer)
+        stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+        if rest:
+            state, more = steps(state, rest)
+            stats = jax.tree.map(jnp.maximum, stats, more)
+        return state, stats
+
     def node(state, _):
-        if save_every == 1:
-            state, stats = one_step(state, None)
-        else:
-            state, stats = jax.lax.scan(one_step, state, None, length=save_every)
-            stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+        state, stats = one_step(state, None) if save_every == 1 else node_steps(state)
         return state, (state, stats)
 
     if checkpoint:

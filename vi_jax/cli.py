@@ -3,10 +3,12 @@
   vi-jax simulate underwater --tau cayley --h 0.01 --steps 50000 --out DIR
   vi-jax simulate beam [--scenario free|clamped|paper] --out DIR
   vi-jax compare [--quick] --out DIR
+  vi-jax fit [--data FILE.npz] --out DIR
 
 ``simulate underwater`` writes ``DIR/trajectory.npz`` (t, R, q, omega, nu, energy,
 kelvin_noether; leading axis = time) and PNG plots. Bad input is reported in one line with a
-non-zero exit status.
+non-zero exit status. The command line compiles small-step loops into single XLA:CPU kernels
+(``vi_jax/_cpu_tuning.py``) unless ``XLA_FLAGS`` already sets ``xla_backend_extra_options``.
 """
 
 import argparse
@@ -27,6 +29,7 @@ def _add_underwater_arguments(sim):
 
 def _parser():
     from ._compare import add_compare_arguments, run_compare
+    from ._fit_cli import add_fit_arguments, run_fit
     from .multisymplectic._cli import add_beam_arguments, run_beam
 
     parser = argparse.ArgumentParser(prog="vi-jax", description="Lie-group variational integrators in JAX")
@@ -42,6 +45,9 @@ def _parser():
     compare = commands.add_parser("compare", help="error against run time: vi_jax schemes and diffrax solvers")
     add_compare_arguments(compare)
     compare.set_defaults(run=run_compare)
+    fit = commands.add_parser("fit", help="recover the underwater vehicle's parameters from observed motion")
+    add_fit_arguments(fit)
+    fit.set_defaults(run=run_fit)
     return parser
 
 
@@ -76,6 +82,9 @@ def _simulate_underwater(args):
 
 
 def main(argv=None):
+    from ._cpu_tuning import enable_fast_cpu_loops
+
+    enable_fast_cpu_loops()  # before the first JAX computation of this process
     args = _parser().parse_args(argv)
     try:
         args.run(args)

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._base import AbstractMatrixGroup
+from ._small import matvec
 
 
 class LinearAction(eqx.Module):
@@ -25,27 +26,27 @@ class LinearAction(eqx.Module):
         return g if self.rho is None else self.rho(g)
 
     def act(self, g, x):
-        return self.matrix(g) @ x
+        return matvec(self.matrix(g), x)
 
     def act_inverse(self, g, x):
         """ρ(g)⁻¹ x = ρ(g⁻¹) x."""
-        return self.matrix(self.group.inverse(g)) @ x
+        return matvec(self.matrix(self.group.inverse(g)), x)
 
     def act_transpose(self, g, b):
         """ρ(g)ᵀ b (the dual action used in seed 000 eq. 42)."""
-        return self.matrix(g).T @ b
+        return matvec(self.matrix(g).T, b)
 
     def infinitesimal(self, xi, x):
         """ρ'(ξ) x."""
         if self.rho is None:
-            return self.group.hat(xi) @ x
+            return matvec(self.group.hat(xi), x)
         eye = self.group.identity(xi.dtype)
-        return jax.jvp(self.rho, (eye,), (self.group.hat(xi),))[1] @ x
+        return matvec(jax.jvp(self.rho, (eye,), (self.group.hat(xi),))[1], x)
 
     def infinitesimal_transpose(self, xi, b):
         """ρ'(ξ)ᵀ b."""
         if self.rho is None:
-            return self.group.hat(xi).T @ b
+            return matvec(self.group.hat(xi).T, b)
         return jax.linear_transpose(lambda x: self.infinitesimal(xi, x), b)(b)[0]
 
     def diamond(self, b, x):

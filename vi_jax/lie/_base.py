@@ -11,6 +11,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._small import matmul, matvec
+
 
 class AbstractMatrixGroup(eqx.Module):
     """A matrix Lie group G ⊂ GL(d) with algebra coordinates in R^r."""
@@ -44,13 +46,13 @@ class AbstractMatrixGroup(eqx.Module):
         return jnp.linalg.inv(g)
 
     def compose(self, a, b):
-        return a @ b
+        return matmul(a, b)
 
     # --- adjoint structure -----------------------------------------------------------
     def bracket(self, xi, eta):
         """[ξ, η] = vee(ξ̂η̂ − η̂ξ̂)."""
         X, Y = self.hat(xi), self.hat(eta)
-        return self.vee(X @ Y - Y @ X)
+        return self.vee(matmul(X, Y) - matmul(Y, X))
 
     def ad(self, xi) -> Float[Array, "r r"]:
         """Matrix of ad_ξ: η ↦ [ξ, η]."""
@@ -58,7 +60,7 @@ class AbstractMatrixGroup(eqx.Module):
 
     def ad_dual(self, xi, mu):
         """ad*_ξ μ = (ad_ξ)ᵀ μ."""
-        return self.ad(xi).T @ mu
+        return matvec(self.ad(xi).T, mu)
 
     def Ad(self, g) -> Float[Array, "r r"]:
         """Matrix of Ad_g: η ↦ vee(g η̂ g⁻¹)."""
@@ -68,7 +70,7 @@ class AbstractMatrixGroup(eqx.Module):
 
     def Ad_dual_inv(self, g, mu):
         """Ad*_{g⁻¹} μ = (Ad_{g⁻¹})ᵀ μ: body momentum → spatial momentum."""
-        return self.Ad(self.inverse(g)).T @ mu
+        return matvec(self.Ad(self.inverse(g)).T, mu)
 
     # --- difference maps: generic fallbacks -----------------------------------------
     def right_trivialised_tangent(self, tau, x) -> Float[Array, "r r"]:
@@ -93,7 +95,7 @@ class AbstractMatrixGroup(eqx.Module):
         matrix comes from one ``jacfwd`` without a linear solve (seed 003 spec §2)."""
         X = self.hat(x)
         eye = jnp.eye(self.matrix_size, dtype=X.dtype)
-        return jax.jacfwd(lambda eta: self.vee((eye - X / 2) @ self.hat(eta) @ (eye + X / 2)))(jnp.zeros_like(x))
+        return jax.jacfwd(lambda eta: self.vee(matmul(matmul(eye - X / 2, self.hat(eta)), eye + X / 2)))(jnp.zeros_like(x))
 
     def exp(self, x):
         return jax.scipy.linalg.expm(self.hat(x))

@@ -11,6 +11,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ._base import AbstractMatrixGroup
+from ._small import matvec
 
 
 class AbstractDifferenceMap(eqx.Module):
@@ -30,7 +31,7 @@ class AbstractDifferenceMap(eqx.Module):
 
     def dtau_inv_dual(self, group: AbstractMatrixGroup, x, mu):
         """(dτ⁻¹_x)* μ = T(x)^{−T} μ."""
-        return self.dtau_inv(group, x).T @ mu
+        return matvec(self.dtau_inv(group, x).T, mu)
 
     def is_regular(self, group: AbstractMatrixGroup, x):
         """Whether x is inside the domain where τ is a local diffeomorphism we trust."""

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 
 from ._base import AbstractMatrixGroup
+from ._small import dot, matmul, matvec
 from ._so3 import skew3, so3_cay, so3_dcay_inv, so3_dexp, so3_dexp_inv, so3_exp, so3_log, unskew3
 
 
@@ -46,7 +47,7 @@ class SE3(AbstractMatrixGroup):
 
     def inverse(self, g):
         R, r = g[:3, :3], g[:3, 3]
-        return _homogeneous(R.T, -R.T @ r)
+        return _homogeneous(R.T, -matvec(R.T, r))
 
     def bracket(self, xi, eta):
         w1, v1, w2, v2 = xi[:3], xi[3:], eta[:3], eta[3:]
@@ -57,17 +58,17 @@ class SE3(AbstractMatrixGroup):
 
     def Ad(self, g):
         R, r = g[:3, :3], g[:3, 3]
-        return _block_lower(R, skew3(r) @ R)
+        return _block_lower(R, matmul(skew3(r), R))
 
     def Ad_dual_inv(self, g, mu):
         """(π, p) ↦ (Rπ + r × Rp, Rp): spatial angular momentum about the origin and linear momentum."""
         R, r = g[:3, :3], g[:3, 3]
-        p = R @ mu[3:]
-        return jnp.concatenate([R @ mu[:3] + jnp.cross(r, p), p])
+        p = matvec(R, mu[3:])
+        return jnp.concatenate([matvec(R, mu[:3]) + jnp.cross(r, p), p])
 
     def cay(self, x):
         w, v = x[:3], x[3:]
-        t = (4 * v + 2 * jnp.cross(w, v) + w * (w @ v)) / (4 + w @ w)
+        t = (4 * v + 2 * jnp.cross(w, v) + w * dot(w, v)) / (4 + dot(w, w))
         return _homogeneous(so3_cay(w), t)
 
     def cay_inv(self, g):
@@ -81,12 +82,12 @@ class SE3(AbstractMatrixGroup):
         eye = jnp.eye(3, dtype=x.dtype)
         A = eye - 0.5 * skew3(w)
         top = jnp.concatenate([so3_dcay_inv(w), jnp.zeros((3, 3), x.dtype)], axis=1)
-        bottom = jnp.concatenate([-0.5 * A @ skew3(v), A], axis=1)
+        bottom = jnp.concatenate([-0.5 * matmul(A, skew3(v)), A], axis=1)
         return jnp.concatenate([top, bottom], axis=0)
 
     def exp(self, x):
         w, v = x[:3], x[3:]
-        return _homogeneous(so3_exp(w), so3_dexp(w) @ v)
+        return _homogeneous(so3_exp(w), matvec(so3_dexp(w), v))
 
     def log(self, g):
         w = so3_log(g[:3, :3])
@@ -102,4 +103,4 @@ class SE3(AbstractMatrixGroup):
         return _block_lower(A_inv, -A_inv @ Q @ A_inv)
 
     def rotation_angle_squared_bound(self, x):
-        return x[:3] @ x[:3]
+        return dot(x[:3], x[:3])

@@ -4,6 +4,7 @@ import jax.numpy as jnp
 
 from . import _series
 from ._base import AbstractMatrixGroup
+from ._small import dot, matmul, matvec
 
 
 def skew3(x):
@@ -27,31 +28,31 @@ def unskew3(X):
 
 def so3_exp(x):
     """Rodrigues' formula (seed 000 eq. 91), Taylor-safe at x = 0."""
-    t2 = x @ x
+    t2 = dot(x, x)
     X = skew3(x)
     eye = jnp.eye(3, dtype=x.dtype)
-    return eye + _series.sinc(t2) * X + _series.one_minus_cos_over_t2(t2) * (X @ X)
+    return eye + _series.sinc(t2) * X + _series.one_minus_cos_over_t2(t2) * matmul(X, X)
 
 
 def so3_dexp(x):
     """Right-trivialised dexp_x = I + (1−cosθ)/θ² x̂ + (θ−sinθ)/θ³ x̂² (= the left Jacobian)."""
-    t2 = x @ x
+    t2 = dot(x, x)
     X = skew3(x)
     eye = jnp.eye(3, dtype=x.dtype)
-    return eye + _series.one_minus_cos_over_t2(t2) * X + _series.t_minus_sin_over_t3(t2) * (X @ X)
+    return eye + _series.one_minus_cos_over_t2(t2) * X + _series.t_minus_sin_over_t3(t2) * matmul(X, X)
 
 
 def so3_dexp_inv(x):
     """dexp⁻¹_x = I − x̂/2 + α(θ)x̂², seed 000 eqs. (92)–(93)."""
     X = skew3(x)
     eye = jnp.eye(3, dtype=x.dtype)
-    return eye - 0.5 * X + _series.dexp_inv_alpha(x @ x) * (X @ X)
+    return eye - 0.5 * X + _series.dexp_inv_alpha(dot(x, x)) * matmul(X, X)
 
 
 def so3_cay(x):
     """cay(x) = I + 4/(4+|x|²)(x̂ + x̂²/2)."""
     X = skew3(x)
-    return jnp.eye(3, dtype=x.dtype) + (4 / (4 + x @ x)) * (X + 0.5 * (X @ X))
+    return jnp.eye(3, dtype=x.dtype) + (4 / (4 + dot(x, x))) * (X + 0.5 * matmul(X, X))
 
 
 def so3_dcay_inv(x):
@@ -68,7 +69,7 @@ def so3_log(R):
     """Rotation vector of R, angle in [0, π); Taylor-safe near the identity."""
     cos = jnp.clip(0.5 * (jnp.trace(R) - 1), -1.0, 1.0)
     w = unskew3(R)  # = sinθ · axis
-    sin2 = w @ w
+    sin2 = dot(w, w)
     # θ/sinθ, written as a function of sin² near θ = 0 where arccos loses accuracy.
     small = sin2 < 1e-6
     safe_sin2 = jnp.where(small, 1.0, sin2)
@@ -114,7 +115,7 @@ class SO3(AbstractMatrixGroup):
         return g
 
     def Ad_dual_inv(self, g, mu):
-        return g @ mu
+        return matvec(g, mu)
 
     def cay(self, x):
         return so3_cay(x)
