@@ -2,9 +2,14 @@
 steps) against a hand-specialised JAX implementation of eq. (88) in the same process.
 
     python benchmarks/step_cost.py [--steps 50000] [--out benchmarks/results/step_cost.json]
+    XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000 \
+        python benchmarks/step_cost.py --out benchmarks/results/step_cost_tuned.json
+
+The second form measures with the XLA:CPU loop option of the command line (vi_jax/_cpu_tuning.py).
 """
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -48,7 +53,10 @@ def main():
 
     reference = rows["hand-specialised eq. (88), 3 Newton its"][1]
     print(f"{'implementation':50s} {'compile+1st [s]':>16s} {'median [s]':>11s} {'ratio':>7s}")
-    result = {"steps": args.steps, "h": args.h, "max |q_hand - q_engine| at T": agreement, "rows": {}}
+    result = {
+        "xla_flags": os.environ.get("XLA_FLAGS", ""), "steps": args.steps, "h": args.h,
+        "max |q_hand - q_engine| at T": agreement, "rows": {},
+    }
     for name, (first, median, _) in rows.items():
         print(f"{name:50s} {first:16.3f} {median:11.4f} {median / reference:7.2f}")
         result["rows"][name] = {"compile_and_first_s": first, "median_s": median, "ratio_to_hand": median / reference}
