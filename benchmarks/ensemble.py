@@ -11,10 +11,14 @@ repeats; final state returned, so saving costs nothing):
 - ``plain vmap, vj.simulate``: ``vj.ensemble(method="vmap")``, the generic engine under vmap;
 - ``batched kernel``: ``vj.ensemble(method="batched")``, members on the vectorised axis.
 
-XLA configurations: ``default`` (no flags) and ``tuned``: XLA_FLAGS
+XLA configurations: ``default`` (no flags), ``tuned``: XLA_FLAGS
 ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000``, which lets
 XLA:CPU compile a whole ``while`` loop into one kernel instead of dispatching each fused
-operation separately (the dominant cost of small-array loops). Rates are given per wall second
+operation separately (the dominant cost of small-array loops); ``tuned, sharded``: the same
+with one XLA host device per core (``--xla_force_host_platform_device_count``), the members
+split over them (``jax.shard_map`` for the hand step, ``ensemble(mesh=...)``), the peer being
+the sharded hand step.
+Rates are given per wall second
 (this machine is shared: see ``cpu_rate``, per CPU second of this process, for the rate an
 otherwise idle core would give).
 """
@@ -29,7 +33,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 TUNED = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
-CONFIGS = {"default": "", "tuned": TUNED}
+DEVICES = f"--xla_force_host_platform_device_count={os.cpu_count()}"
+CONFIGS = {"default": "", "tuned": TUNED, "tuned, sharded": f"{TUNED} {DEVICES}"}
 
 
 def measure(members_list, config):
@@ -69,15 +74,34 @@ def measure(members_list, config):
         states = vary(x0, xi=omegas)
         impls = {
             "plain vmap, hand step": (jax.jit(lambda w, s=n_steps: hand(w, s)), jnp.asarray(omegas)),
-            "plain vmap, vj.simulate": (
-                jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="vmap", throw=False).q[:, -1]),
-                states,
-            ),
-            "batched kernel": (
-                jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="batched", throw=False).q[:, -1]),
-                states,
-            ),
         }
+        n_dev = jax.device_count()
+        if n_dev > 1:
+            if n % n_dev:
+                continue
+            mesh = jax.make_mesh((n_dev,), ("members",))
+            spec = jax.sharding.PartitionSpec("members")
+            impls = {
+                "plain vmap, hand step, sharded": (
+                    jax.jit(jax.shard_map(lambda w, s=n_steps: hand(w, s), mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)),
+                    jax.device_put(jnp.asarray(omegas), jax.sharding.NamedSharding(mesh, spec)),
+                ),
+                "batched kernel, sharded": (
+                    jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, mesh=mesh, throw=False).q[:, -1]),
+                    states,
+                ),
+            }
+        else:
+            impls |= {
+                "plain vmap, vj.simulate": (
+                    jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="vmap", throw=False).q[:, -1]),
+                    states,
+                ),
+                "batched kernel": (
+                    jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="batched", throw=False).q[:, -1]),
+                    states,
+                ),
+            }
         outputs = {}
         for name, (fn, arg) in impls.items():
             repeats = 3 if n * n_steps * (20 if "simulate" in name else 1) > 2e7 else 5
@@ -91,7 +115,7 @@ def measure(members_list, config):
                 median_s=median, rate=n * n_steps / median, cpu_rate=n * n_steps / cpu, cpu_over_wall=cpu / wall,
             ))
             print(f"  [{config}] {n:5d} members  {name:28s} {n * n_steps / median / 1e6:8.3f} M member-steps/s", file=sys.stderr, flush=True)
-        reference = outputs["plain vmap, hand step"]
+        reference = outputs[next(iter(impls))]
         for row in rows[-len(impls):]:
             row["max_abs_q_difference_to_first"] = float(np.max(np.abs(outputs[row["implementation"]] - reference)))
         sol = ensemble(model, states, h, 200, save_every=10, method="batched")
@@ -119,7 +143,7 @@ def main():
         run = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=True)
         rows += json.loads(run.stdout.strip().splitlines()[-1])
 
-    peer = {(r["config"], r["members"]): r["rate"] for r in rows if r["implementation"] == "plain vmap, hand step"}
+    peer = {(r["config"], r["members"]): r["rate"] for r in rows if r["implementation"].startswith("plain vmap, hand step")}
     print(f"\n{'config':11s} {'members':>7s} {'implementation':28s} {'M member-steps/s':>16s} {'per CPU-s':>10s} {'× peer':>7s}")
     for r in rows:
         r["ratio_to_plain_vmap_hand"] = r["rate"] / peer[(r["config"], r["members"])]

@@ -5,7 +5,8 @@ Times, in one process per XLA configuration (compiled code only, median of 7):
 
 - the Newton Jacobian of a Cayley-rotated quadratic form x ↦ cay(x)ᵀA cay(x)v (the shape of
   the trapezoid rule's second Lagrangian evaluation) inside a 4000-step ``lax.scan``, written
-  with ``@`` against ``_small.matmul``/``matvec``;
+  with ``@`` against ``_small.matmul``/``matvec``, alone and under ``jax.vmap`` over 1024
+  members (per member-step);
 - a whole ``vj.simulate`` step of the underwater vehicle (Cayley, h = 0.01, final state only)
   for orders 1, 2 and 4.
 
@@ -60,6 +61,11 @@ def measure():
         scan = jax.jit(lambda x, fn=fn: jax.lax.scan(lambda c, _: (c + 1e-9 * jax.jacfwd(fn)(c)[0], None), x, None, length=N_STEPS)[0])
         _, median, _ = time_compiled(scan, jnp.array([0.1, 0.2, 0.3]))
         rows.append(dict(case=name, us_per_step=median / N_STEPS * 1e6))
+    for name, fn in (("Jacobian, @, vmap 1024", with_dots), ("Jacobian, fused, vmap 1024", fused)):
+        step = jax.vmap(lambda c, fn=fn: c + 1e-9 * jax.jacfwd(fn)(c)[0])
+        scan = jax.jit(lambda x, step=step: jax.lax.scan(lambda c, _: (step(c), None), x, None, length=N_STEPS // 20)[0])
+        _, median, _ = time_compiled(scan, jnp.tile(jnp.array([0.1, 0.2, 0.3]), (1024, 1)))
+        rows.append(dict(case=name, us_per_step=median / (N_STEPS // 20) / 1024 * 1e6))
     model = vj.models.UnderwaterVehicle()
     x0 = model.initial_state()
     for order in (1, 2, 4):

@@ -3,7 +3,7 @@
 By default XLA:CPU dispatches every fused operation of a ``while`` loop body separately; for a
 step of a few hundred flops the dispatches cost more than the arithmetic. The option
 ``xla_cpu_small_while_loop_byte_threshold`` makes XLA compile loops whose buffers stay under the
-threshold into one kernel: a vehicle step is 3.9 → 0.6 µs (order 1) and 9.2 → 2.6 µs (order 2),
+threshold into one kernel: a vehicle step is 3.9 → 0.6 µs (order 1) and 8.6 → 2.6 µs (order 2),
 diffrax's solvers gain similarly (``python benchmarks/small_products.py``,
 ``benchmarks/results/small_products.json``). XLA reads its flags once, when the first
 computation initialises the CPU backend, so this must run before any JAX computation.
