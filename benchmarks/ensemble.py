@@ -31,10 +31,11 @@ import sys
 import time
 from pathlib import Path
 
+from vi_jax._cpu_tuning import FAST_LOOPS_FLAG
+
 HERE = Path(__file__).resolve().parent
-TUNED = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
 DEVICES = f"--xla_force_host_platform_device_count={os.cpu_count()}"
-CONFIGS = {"default": "", "tuned": TUNED, "tuned, sharded": f"{TUNED} {DEVICES}"}
+CONFIGS = {"default": "", "tuned": FAST_LOOPS_FLAG, "tuned, sharded": f"{FAST_LOOPS_FLAG} {DEVICES}"}
 
 
 def measure(members_list, config):

@@ -28,9 +28,10 @@ import sys
 import time
 from pathlib import Path
 
+from vi_jax._cpu_tuning import FAST_LOOPS_FLAG
+
 HERE = Path(__file__).resolve().parent
-TUNED = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
-CONFIGS = {"default": "", "tuned": TUNED}
+CONFIGS = {"default": "", "tuned": FAST_LOOPS_FLAG}
 H = 0.01
 
 
@@ -166,7 +167,7 @@ def main():
     for kind, variants in (("final", ("plain", "checkpoint")), ("every-step", ("plain", "checkpoint"))):
         for variant in variants:
             for n in args.sizes:
-                row = _child(["--child-memory", kind, variant, str(n)], TUNED)
+                row = _child(["--child-memory", kind, variant, str(n)], FAST_LOOPS_FLAG)
                 memory.append(row)
                 print(
                     f"  {kind:10s} {variant:10s} {n:>9d} steps: temp {row['temp_bytes'] / 1e6:10.2f} MB, "

@@ -71,12 +71,10 @@ def _load(path):
 
 
 def _plot_loss(result, path):
-    import matplotlib
+    from matplotlib.figure import Figure  # pyplot-free: no backend is selected or changed
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     history = np.maximum(result.loss_history, 1e-30)
     ax.semilogy(np.arange(1, history.size + 1), history, lw=1.0, marker=".", ms=3)
     for k, start in enumerate(result.stage_starts[1:], 1):
@@ -88,7 +86,6 @@ def _plot_loss(result, path):
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def run_fit(args):

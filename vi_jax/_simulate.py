@@ -88,10 +88,7 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
         raise ValueError("x0: this system has no additional dynamics; expected x0.q = x0.qdot = None")
     val.check_finite("system parameters", val.numeric_leaves(system))
     h = val.check_positive_scalar("h", h)
-    n_steps = val.check_int("n_steps", n_steps, 1)
-    save_every = val.check_int("save_every", save_every, 1)
-    if n_steps % save_every:
-        raise ValueError(f"save_every: expected a divisor of n_steps={n_steps}, got {save_every}")
+    n_steps, save_every = val.check_steps(n_steps, save_every)
     val.check_choice("order", order, ORDERS)
     return h, n_steps, save_every, difference_map(tau)
 

@@ -79,6 +79,15 @@ def check_int(name, value, minimum):
     return int(value)
 
 
+def check_steps(n_steps, save_every):
+    """``n_steps`` ≥ 1 and ``save_every`` ≥ 1 dividing it."""
+    n_steps = check_int("n_steps", n_steps, 1)
+    save_every = check_int("save_every", save_every, 1)
+    if n_steps % save_every:
+        raise ValueError(f"save_every: expected a divisor of n_steps={n_steps}, got {save_every}")
+    return n_steps, save_every
+
+
 def check_choice(name, value, choices):
     if value not in choices:
         raise ValueError(f"{name}: expected one of {tuple(choices)}, got {value!r}")

@@ -88,10 +88,7 @@ def _validate(system, g0, xi0, g1, dt, ds, n_steps, boundary, force, save_every)
         g1 = validate_rows("g1", G, g1, nodes)
     dt = val.check_positive_scalar("dt", dt)
     ds = val.check_positive_scalar("ds", ds)
-    n_steps = val.check_int("n_steps", n_steps, 1)
-    save_every = val.check_int("save_every", save_every, 1)
-    if n_steps % save_every:
-        raise ValueError(f"save_every: expected a divisor of n_steps={n_steps}, got {save_every}")
+    n_steps, save_every = val.check_steps(n_steps, save_every)
     val.check_choice("boundary", boundary, BOUNDARIES)
     if boundary == "clamped-free":
         if nodes < 2:
