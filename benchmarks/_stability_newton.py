@@ -1,4 +1,4 @@
-"""Prototype: ``vi_jax._solve.newton_root`` with a damped fallback (backtracking step halving
+"""Prototype: ``vi_jax.solvers.newton_root`` with a damped fallback (backtracking step halving
 on ‖F‖∞), for measuring whether damping rescues the steps where plain Newton stops converging.
 The engine is not modified: :func:`patched` swaps the solver that ``dep_step`` looks up while a
 program is traced (jit caches are cleared on entry and exit)."""
@@ -8,7 +8,7 @@ import contextlib
 import jax
 import jax.numpy as jnp
 
-from vi_jax._solve import MAX_ITERATIONS, NONFINITE, SUCCESS, dense_solve, NewtonStats
+from vi_jax.solvers import MAX_ITERATIONS, NONFINITE, SUCCESS, dense_solve, NewtonStats
 from vi_jax.discrete import _dep
 
 HALVINGS = 8  # trial step lengths 1, 1/2, …, 1/2⁷

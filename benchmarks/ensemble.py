@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-from vi_jax._cpu_tuning import FAST_LOOPS_FLAG
+from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
 
 HERE = Path(__file__).resolve().parent
 DEVICES = f"--xla_force_host_platform_device_count={os.cpu_count()}"
@@ -47,7 +47,7 @@ def measure(members_list, config):
     import numpy as np
 
     import vi_jax as vj
-    from vi_jax._ensemble import ensemble, vary
+    from vi_jax.engine._ensemble import ensemble, vary
 
     sys.path.insert(0, str(HERE))
     sys.path.insert(0, str(HERE.parent / "tests"))

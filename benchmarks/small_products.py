@@ -24,7 +24,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from vi_jax._cpu_tuning import FAST_LOOPS_FLAG
+from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
 
 HERE = Path(__file__).resolve().parent
 N_STEPS = 4000

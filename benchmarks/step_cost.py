@@ -5,7 +5,7 @@ steps) against a hand-specialised JAX implementation of eq. (88) in the same pro
     XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000 \
         python benchmarks/step_cost.py --out benchmarks/results/step_cost_tuned.json
 
-The second form measures with the XLA:CPU loop option of the command line (vi_jax/_cpu_tuning.py).
+The second form measures with the XLA:CPU loop option of the command line (vi_jax/engine/_cpu_tuning.py).
 """
 
 import argparse

@@ -1,10 +1,10 @@
-"""Smoke test of the error-against-run-time study (vi_jax/_compare.py) on tiny sizes."""
+"""Smoke test of the error-against-run-time study (vi_jax/studies/work_precision.py) on tiny sizes."""
 
 import dataclasses
 import json
 import math
 
-from vi_jax import _compare
+from vi_jax.studies import work_precision as _compare
 
 # The quick study shrunk to one program per peer: the long-horizon run has the work-precision
 # run's step count and saved nodes, so the two share compiled programs.

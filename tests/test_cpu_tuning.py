@@ -1,8 +1,8 @@
-"""The XLA:CPU loop option requested by the command line (vi_jax/_cpu_tuning.py)."""
+"""The XLA:CPU loop option requested by the command line (vi_jax/engine/_cpu_tuning.py)."""
 
 import os
 
-from vi_jax._cpu_tuning import FAST_LOOPS_FLAG, enable_fast_cpu_loops
+from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG, enable_fast_cpu_loops
 
 
 def test_adds_the_option_to_existing_flags(monkeypatch):

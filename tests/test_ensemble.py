@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import vi_jax as vj
-from vi_jax._ensemble import CHUNK, ensemble, member_converged, vary
-from vi_jax._simulate import NewtonFailure
-from vi_jax._solve import SINGULAR_DIFFERENCE_MAP, SUCCESS
+from vi_jax.engine._ensemble import CHUNK, ensemble, member_converged, vary
+from vi_jax.engine._simulate import NewtonFailure
+from vi_jax.solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
 
 MODEL = vj.models.UnderwaterVehicle()
 X0 = MODEL.initial_state()

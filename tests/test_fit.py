@@ -13,7 +13,7 @@ import optax
 import pytest
 
 import vi_jax as vj
-from vi_jax._fit import (
+from vi_jax.fitting._fit import (
     DEFAULT_FREE,
     OFFSET_SCALE,
     Observations,
@@ -25,7 +25,7 @@ from vi_jax._fit import (
     levenberg_marquardt,
     synthesize,
 )
-from vi_jax._fit_cli import add_fit_arguments, run_fit
+from vi_jax.cli.fit import add_fit_arguments, run_fit
 
 TRUTH = vj.models.UnderwaterVehicle()
 X0 = TRUTH.initial_state()
@@ -117,17 +117,35 @@ def test_parametrisation_keeps_matrices_symmetric_positive_definite():
 
 
 def test_levenberg_marquardt_transformation_solves_least_squares():
-    """On r(x) = Ax − b: accepted steps lower the loss and reach the least-squares solution;
-    a step that would raise the loss is rejected with a larger damping."""
+    """On r(x) = Ax − b: every accepted step contracts the error by the damping's factor and the
+    iteration reaches the least-squares solution to the round-off of the normal equations; a step
+    that would raise the loss is rejected with a larger damping."""
     rng = np.random.default_rng(1)
     A, b = jnp.asarray(rng.normal(size=(20, 4))), jnp.asarray(rng.normal(size=20))
     value_fn = lambda x: 0.5 * jnp.sum((A @ x - b) ** 2)  # noqa: E731
+    x_star = jnp.linalg.lstsq(A, b)[0]
+    # δ = −(AᵀA + λD)⁻¹Aᵀr with D = diag(AᵀA): in the D½-weighted norm the error e = x − x* obeys
+    # e⁺ = λ(B + λI)⁻¹e, B = D^-½ AᵀA D^-½, so it shrinks by at least λ/(λ + μ_min(B)) per step.
+    AtA = np.asarray(A.T @ A)
+    d_half = np.sqrt(np.diag(AtA))
+    mu_min = np.linalg.eigvalsh(AtA / np.outer(d_half, d_half))[0]
+    norm = lambda x: float(np.linalg.norm(d_half * np.asarray(x - x_star)))  # noqa: E731
+    # Floor: a step is accepted only if it lowers the loss L in floating point, so progress stops
+    # once the possible decrease ½‖e‖²_B ≥ μ_min‖e‖²/2 falls below the loss's round-off (a few
+    # ε·L): ‖e‖ ≲ √(2·4ε·L*/μ_min); and the normal equations lose cond(A)² ε (Higham, §20.4).
+    eps = np.finfo(np.float64).eps
+    floor = max(
+        np.sqrt(2 * 4 * eps * float(value_fn(x_star)) / mu_min),
+        10 * np.linalg.cond(np.asarray(A)) ** 2 * eps * norm(jnp.zeros(4)),
+    )
     opt = levenberg_marquardt(damping=1e-3)
     x, state = jnp.zeros(4), opt.init(jnp.zeros(4))
-    for _ in range(6):
+    for _ in range(20):
+        lam, before = float(state.damping), norm(x)
         updates, state = opt.update(None, state, x, residuals=A @ x - b, jacobian=A, value_fn=value_fn, value=value_fn(x))
         x = optax.apply_updates(x, updates)
-    np.testing.assert_allclose(x, jnp.linalg.lstsq(A, b)[0], rtol=1e-10)
+        assert norm(x) <= lam / (lam + mu_min) * before * (1 + 1e-6) or before <= floor
+    assert norm(x) <= floor
     damping = float(state.damping)
     updates, state = opt.update(None, state, x, residuals=A @ x - b, jacobian=A, value_fn=value_fn, value=value_fn(x) - 1.0)
     assert np.all(np.asarray(updates) == 0) and float(state.damping) == pytest.approx(4 * damping)

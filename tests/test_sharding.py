@@ -18,7 +18,7 @@ SCRIPT = textwrap.dedent(
     jax.config.update("jax_enable_x64", True)
     import numpy as np
     import vi_jax as vj
-    from vi_jax._ensemble import ensemble, vary
+    from vi_jax.engine._ensemble import ensemble, vary
 
     assert jax.device_count() == 4, jax.devices()
     mesh = jax.make_mesh((4,), ("members",))

@@ -1,13 +1,29 @@
 """vi_jax: differentiable Lie-group variational integrators in JAX."""
 
-from . import continuous as continuous, discrete as discrete, lie as lie, models as models, multisymplectic as multisymplectic
-from ._cpu_tuning import enable_fast_cpu_loops as enable_fast_cpu_loops
+from . import (
+    continuous as continuous,
+    discrete as discrete,
+    fitting as fitting,
+    integrators as integrators,
+    lie as lie,
+    models as models,
+    multisymplectic as multisymplectic,
+)
 from ._diagnostics import (
     group_constraint_residual as group_constraint_residual,
     kelvin_noether as kelvin_noether,
 )
-from ._ensemble import ensemble as ensemble, member_converged as member_converged, vary as vary
-from ._fit import (
+from ._system import AbstractSystem as AbstractSystem, State as State, System as System
+from .engine import (
+    NewtonFailure as NewtonFailure,
+    Solution as Solution,
+    enable_fast_cpu_loops as enable_fast_cpu_loops,
+    ensemble as ensemble,
+    member_converged as member_converged,
+    simulate as simulate,
+    vary as vary,
+)
+from .fitting import (
     FitResult as FitResult,
     Observations as Observations,
     Parametrisation as Parametrisation,
@@ -16,7 +32,5 @@ from ._fit import (
     levenberg_marquardt as levenberg_marquardt,
     synthesize as synthesize,
 )
-from ._simulate import NewtonFailure as NewtonFailure, Solution as Solution, simulate as simulate
-from ._system import AbstractSystem as AbstractSystem, State as State, System as System
 
 __version__ = "0.1.0"

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from ._diagnostics import kelvin_noether as _kelvin_noether, kelvin_noether_scale as _kelvin_noether_scale
-from ._solve import dense_solve
+from .solvers import dense_solve
 from ._system import AbstractSystem, State
 
 

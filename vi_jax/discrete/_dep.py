@@ -14,7 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._solve import SINGULAR_DIFFERENCE_MAP, newton_root
+from ..solvers import SINGULAR_DIFFERENCE_MAP, newton_root
 from ._quadrature import discrete_lagrangian
 
 

@@ -19,7 +19,6 @@ from ._noether import (
     time_momentum_map as time_momentum_map,
     triangle_momentum_maps as triangle_momentum_maps,
 )
-from ._plots import plot_beam_shapes as plot_beam_shapes, plot_conservation as plot_conservation
 from ._space import SpaceMarch as SpaceMarch, space_march as space_march
 from ._symplectic import (
     field_variation as field_variation,

@@ -26,7 +26,7 @@ import numpy as np
 from jax.extend.core import Literal
 
 from .. import _validation as val
-from .._solve import RESULT_MESSAGES, SUCCESS, dense_solve, newton_root
+from ..solvers import RESULT_MESSAGES, SUCCESS, dense_solve, newton_root
 from ._lagrangian import dual_Ad
 
 

@@ -27,10 +27,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
-from .._simulate import NewtonFailure
-from .._solve import RESULT_MESSAGES, SUCCESS, newton_root
+from ..engine._simulate import NewtonFailure
+from ..solvers import RESULT_MESSAGES, SUCCESS, newton_root
 from .._system import State
-from ._rigid_body import RigidBody
+from ..models._rigid_body import RigidBody
 
 FORMS = ("lie_poisson", "clebsch")
 
@@ -78,7 +78,7 @@ def discrete_legendre(body, h, omega):
 
 def inverse_discrete_legendre(body, h, mu, guess, *, rtol, max_iterations=20):
     """X with :func:`discrete_legendre` (body, h, X) = μ by Newton from ``guess``; returns
-    (X, :class:`~vi_jax._solve.NewtonStats`)."""
+    (X, :class:`~vi_jax.solvers.NewtonStats`)."""
 
     def residual(x):
         value = discrete_legendre(body, h, x)

@@ -8,13 +8,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _validation as val
-from ._diagnostics import kelvin_noether, kelvin_noether_scale
-from ._solve import RESULT_MESSAGES, SUCCESS
-from ._system import AbstractSystem, State
-from .discrete import composition_coefficients, dep_step, inverse_legendre, legendre_initial_state
-from .discrete._composition import ORDERS
-from .lie import difference_map
+from .. import _validation as val
+from .._diagnostics import kelvin_noether, kelvin_noether_scale
+from ..solvers import RESULT_MESSAGES, SUCCESS
+from .._system import AbstractSystem, State
+from ..discrete import composition_coefficients, dep_step, inverse_legendre, legendre_initial_state
+from ..discrete._composition import ORDERS
+from ..lie import difference_map
 
 
 class NewtonFailure(RuntimeError):

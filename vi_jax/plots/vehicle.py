@@ -1,11 +1,8 @@
 """Figures of a run: relative energy and Kelvin–Noether errors (semilog) and the trajectory —
 the analogues of seed 000 Figures 1–3. Each function overlays several labelled solutions."""
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
+from matplotlib.figure import Figure  # pyplot-free: no backend is selected or changed
 
 
 def _relative_error(values):
@@ -16,7 +13,8 @@ def _relative_error(values):
 
 
 def _semilog(solutions, quantity, ylabel, title, path):
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     for label, sol in solutions.items():
         err = _relative_error(getattr(sol, quantity))
         ax.semilogy(np.asarray(sol.t)[1:], np.maximum(err[1:], 1e-17), lw=0.8, label=label)
@@ -27,7 +25,6 @@ def _semilog(solutions, quantity, ylabel, title, path):
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_energy_error(solutions, path):
@@ -42,7 +39,7 @@ def plot_kelvin_noether_error(solutions, path):
 
 def plot_trajectory(solutions, path):
     """Figure 3: the 3-D path of q and its components against t."""
-    fig = plt.figure(figsize=(11, 4.5))
+    fig = Figure(figsize=(11, 4.5))
     ax3d = fig.add_subplot(1, 2, 1, projection="3d")
     axes = [fig.add_subplot(3, 2, 2 * i + 2) for i in range(3)]
     for label, sol in solutions.items():
@@ -61,7 +58,6 @@ def plot_trajectory(solutions, path):
     axes[-1].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_vehicle_run(solutions, out_dir):

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._fit import DEFAULT_FREE, MATRICES, OFFSET_SCALE, PARAMETERS
+from ..fitting._fit import DEFAULT_FREE, MATRICES, OFFSET_SCALE, PARAMETERS
+from ..plots.fit import plot_loss
 
 
 def add_fit_arguments(parser):
@@ -55,8 +56,8 @@ def _perturbed(truth, free, perturb, rng):
 def _load(path):
     import jax.numpy as jnp
 
-    from ._fit import Observations
-    from ._system import State
+    from ..fitting._fit import Observations
+    from .._system import State
 
     try:
         data = np.load(path)
@@ -70,31 +71,13 @@ def _load(path):
     return obs, x0
 
 
-def _plot_loss(result, path):
-    from matplotlib.figure import Figure  # pyplot-free: no backend is selected or changed
-
-    fig = Figure(figsize=(7, 4))
-    ax = fig.subplots()
-    history = np.maximum(result.loss_history, 1e-30)
-    ax.semilogy(np.arange(1, history.size + 1), history, lw=1.0, marker=".", ms=3)
-    for k, start in enumerate(result.stage_starts[1:], 1):
-        ax.axvline(start + 0.5, color="0.6", lw=0.8, ls="--")
-        ax.text(start + 1, history.max(), f"stage {k + 1}", fontsize=7, va="top", color="0.4")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel(r"$\frac{1}{2}\,\sum r^2 / \sum w$ (whitened)")
-    ax.set_title("Fit of the underwater vehicle's parameters")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-
-
 def run_fit(args):
     """Run ``vi-jax fit`` with parsed ``args``; raises ValueError on bad input."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from ._fit import Parametrisation, fit, identifiability, synthesize
-    from .models import UnderwaterVehicle
+    from ..fitting._fit import Parametrisation, fit, identifiability, synthesize
+    from ..models import UnderwaterVehicle
 
     truth = UnderwaterVehicle()
     if args.data is None:
@@ -119,7 +102,7 @@ def run_fit(args):
     report["settings"] = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if not callable(v)}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "fit.json").write_text(json.dumps(report, indent=2))
-    _plot_loss(result, args.out / "loss.png")
+    plot_loss(result, args.out / "loss.png")
     print(f"{'parameter':22s} {'fitted':>14s} {'± 1σ':>11s}" + (f" {'truth':>12s}" if "truth" in report else ""))
     for k, v, s in zip(result.labels, result.values, result.std):
         truth_col = f" {report['truth'][k]:12.6g}" if "truth" in report else ""

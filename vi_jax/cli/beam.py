@@ -78,8 +78,8 @@ def run_beam(args) -> None:
 def _time_march(model, args):
     import numpy as np
 
-    from ._plots import plot_beam_shapes, plot_conservation
-    from ._time import time_march
+    from ..plots.beam import plot_beam_shapes, plot_conservation
+    from ..multisymplectic._time import time_march
 
     ds = float(model.length) / args.nodes
     limit = float(model.stable_time_step(ds))
@@ -115,9 +115,9 @@ def _paper(model, args):
     import numpy as np
 
     from ..models._beam import PAPER_DS, PAPER_DT, PAPER_DURATION
-    from ._noether import time_energy, time_momentum_map
-    from ._plots import plot_beam_shapes, plot_conservation
-    from ._space import space_march
+    from ..multisymplectic._noether import time_energy, time_momentum_map
+    from ..plots.beam import plot_beam_shapes, plot_conservation
+    from ..multisymplectic._space import space_march
 
     dt = PAPER_DT if args.dt is None else args.dt
     duration = PAPER_DURATION if args.duration is None else args.duration

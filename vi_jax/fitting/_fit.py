@@ -33,11 +33,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from . import _validation as val
-from ._simulate import NewtonFailure, simulate
-from ._system import State
-from .lie import SO3
-from .models import UnderwaterVehicle
+from .. import _validation as val
+from ..engine import NewtonFailure, simulate
+from .._system import State
+from ..lie import SO3
+from ..models import UnderwaterVehicle
+from ._levenberg_marquardt import levenberg_marquardt
 
 PARAMETERS = ("mass", "added_mass", "inertia", "buoyancy", "buoyancy_offset")
 DEFAULT_FREE = ("added_mass", "inertia", "buoyancy_offset")
@@ -225,32 +226,6 @@ def _weights(obs, fraction=1.0, observed=OBSERVED):
     n = obs.n_samples
     rows = np.repeat(np.arange(n) < max(1, round(fraction * n)), 3).astype(float)
     return jnp.asarray(np.concatenate([rows * ("position" in observed), rows * ("attitude" in observed)]))
-
-
-class LevenbergMarquardtState(eqx.Module):
-    damping: jax.Array
-
-
-def levenberg_marquardt(damping=1e-3, increase=4.0, decrease=3.0) -> optax.GradientTransformationExtraArgs:
-    """Levenberg–Marquardt as an optax transformation. ``update`` needs the extra arguments
-    ``residuals`` r and ``jacobian`` J at ``params`` and ``value_fn`` (½Σr²/Σw); it proposes
-    δ = −(JᵀJ + λ·diag JᵀJ)⁻¹Jᵀr and returns it if it lowers ``value_fn``, else 0 with a larger
-    λ (a rejected step costs one evaluation)."""
-
-    def init(params):
-        return LevenbergMarquardtState(jnp.asarray(damping, jnp.result_type(params)))
-
-    def update(updates, state, params, *, residuals, jacobian, value_fn, value, **extra):
-        del updates, extra
-        A = jacobian.T @ jacobian
-        g = jacobian.T @ residuals
-        scale = jnp.diag(A) + 1e-12 * jnp.max(jnp.diag(A))
-        step = -jnp.linalg.solve(A + state.damping * jnp.diag(scale), g)
-        accept = value_fn(params + step) < value
-        new = jnp.where(accept, state.damping / decrease, state.damping * increase)
-        return jnp.where(accept, step, 0.0), LevenbergMarquardtState(new)
-
-    return optax.GradientTransformationExtraArgs(init, update)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """Error against compiled run time: vi_jax's variational schemes against diffrax's solvers on the
-same continuous Euler–Poincaré equations (``vi-jax compare``, ``benchmarks/work_precision.py``).
+same continuous Euler–Poincaré equations (``vi-jax compare``, ``benchmarks/work_precision.py``; figures in ``vi_jax/plots/work_precision.py``).
 
 All peers are measured in one process: every program is compiled ahead of time (compile time
 reported separately), run once as a warm-up, then timed in ``repeats`` interleaved rounds
@@ -26,13 +26,11 @@ import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
-from matplotlib.figure import Figure
-from matplotlib.ticker import NullFormatter
 
-from . import continuous
-from ._diagnostics import group_constraint_residual
-from ._simulate import simulate
-from .models import HeavyTop, UnderwaterVehicle
+from .. import continuous
+from .._diagnostics import group_constraint_residual
+from ..engine import simulate
+from ..models import HeavyTop, UnderwaterVehicle
 
 
 class RK4(diffrax.AbstractERK):
@@ -442,75 +440,6 @@ def _representatives(peers, series):
     return out
 
 
-# ----------------------------------------------------------------------------- plots
-
-
-def _style(peer):
-    """vi_jax: solid, colour by order, marker by τ; diffrax: dashed, grey-blue family."""
-    if peer.startswith("vi_jax"):
-        _, tau, _, order = peer.split()
-        colour = {"1": "tab:red", "2": "tab:orange", "4": "tab:green", "6": "tab:purple"}[order]
-        return dict(color=colour, ls="-", marker="o" if tau == "cayley" else "s", mfc="none" if tau == "exp" else colour)
-    colour = {"Tsit5": "tab:blue", "Dopri5": "tab:cyan", "Dopri8": "navy", "Kvaerno5": "tab:brown", "RK4": "black"}[peer.split()[1]]
-    return dict(color=colour, ls="--", marker="^" if "PID" in peer else "x")
-
-
-def _plot_curves(ax, peers, key):
-    for peer, rows in peers.items():
-        pts = sorted((r["median_s"], r[key]) for r in rows if r[key] is not None)
-        if pts:
-            ax.loglog(*zip(*pts), ms=4, lw=1, label=peer, **_style(peer))
-    ax.xaxis.set_minor_formatter(NullFormatter())
-    ax.grid(True, which="both", alpha=0.3)
-    ax.set_xlabel("compiled run time [s] (median)")
-
-
-def plot_work_precision(result, path):
-    systems = result["work_precision"]
-    fig = Figure(figsize=(7.5 * len(systems), 5.5))
-    axes = fig.subplots(1, len(systems), squeeze=False)
-    for ax, (name, data) in zip(axes[0], systems.items()):
-        _plot_curves(ax, data["peers"], "error")
-        ax.axhspan(min(ACCURACIES), max(ACCURACIES), color="0.9", zorder=0)
-        ax.set_ylabel("relative final-state error at T")
-        ax.set_title(f"{data['system']}, T = {data['T']:g} s", fontsize=9)
-        ax.legend(fontsize=6.5, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-
-
-def plot_long_horizon(result, path):
-    data = result["long_horizon"]
-    fig = Figure(figsize=(17, 5))
-    axes = fig.subplots(1, 3)
-    labels = (("energy_error", "max |E/E₀ − 1|"), ("kelvin_noether_error", "max |I − I₀| / scale"), ("group_drift", "max ‖RᵀR − I‖"))
-    for ax, (key, ylabel) in zip(axes, labels):
-        _plot_curves(ax, data["peers"], key)
-        ax.set_ylabel(ylabel)
-    axes[0].legend(fontsize=7)
-    fig.suptitle(f"{data['system']}, T = {data['T']:g} s ({data['vi_jax_steps']:,} steps for vi_jax and RK4)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-
-
-def plot_energy_vs_time(result, path):
-    data = result["long_horizon"]
-    fig = Figure(figsize=(8, 5.5))
-    ax = fig.subplots()
-    for peer, s in data["energy_vs_time"].items():
-        style = _style(peer)
-        style.pop("marker"), style.pop("mfc", None)
-        running_max = np.maximum.accumulate(np.maximum(s["energy_error"], 1e-17))
-        ax.loglog(s["t"], running_max, lw=1.2, label=f"{peer} ({s['setting']})", **style)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("max over [0, t] of |E/E₀ − 1| (saved nodes)")
-    ax.set_title(f"{data['system']}: energy error along the run", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-
-
 # ----------------------------------------------------------------------------- tables
 
 
@@ -571,31 +500,9 @@ def run_study(study: Study, out, *, progress=True, command=None):
         "step as an argument, so one compile serves all settings of a solver",
     }
     (out / "work_precision.json").write_text(json.dumps(result, indent=1))
+    from ..plots.work_precision import plot_energy_vs_time, plot_long_horizon, plot_work_precision
+
     for plot, name in ((plot_work_precision, "work_precision.png"), (plot_long_horizon, "long_horizon.png"),
                        (plot_energy_vs_time, "energy_vs_time.png")):
         plot(result, out / name)
-    return result
-
-
-def add_compare_arguments(parser):
-    """The options of ``vi-jax compare`` (and ``benchmarks/work_precision.py``)."""
-    parser.add_argument("--quick", action="store_true", help="small sizes (about 1–2 min) instead of the full study")
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median reported; ≥ 5)")
-    parser.add_argument("--out", type=Path, default=Path("out/compare"), help="directory for work_precision.json and PNGs")
-    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    return parser
-
-
-def run_compare(args):
-    """Run the study chosen by ``args`` (see :func:`add_compare_arguments`), print the tables."""
-    import sys
-
-    jax.config.update("jax_enable_x64", True)
-    if args.repeats < 5:
-        raise ValueError(f"--repeats: expected at least 5 (median of ≥ 5 timed runs), got {args.repeats}")
-    study = dataclasses.replace(QUICK if args.quick else FULL, repeats=args.repeats)
-    result = run_study(study, args.out, progress=not args.no_progress, command=" ".join(sys.argv))
-    print(format_tables(result))
-    print(f"\nwrote {args.out / 'work_precision.json'} and work_precision.png, long_horizon.png, energy_vs_time.png "
-          f"({result['meta']['wall_s']:.0f} s)")
     return result

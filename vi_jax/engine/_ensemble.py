@@ -37,12 +37,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
-from . import _validation as val
+from .. import _validation as val
 from ._simulate import NewtonFailure, Solution, _default_rtol, _validate, simulate
-from ._solve import MAX_ITERATIONS, NONFINITE, RESULT_MESSAGES, SINGULAR_DIFFERENCE_MAP, SUCCESS, CHORD_ITERATIONS
-from ._system import State
-from .lie import _series
-from .models import UnderwaterVehicle
+from ..solvers import MAX_ITERATIONS, NONFINITE, RESULT_MESSAGES, SINGULAR_DIFFERENCE_MAP, SUCCESS, CHORD_ITERATIONS
+from .._system import State
+from ..lie import _series
+from ..models import UnderwaterVehicle
 
 METHODS = ("auto", "batched", "vmap")
 

@@ -1,0 +1,13 @@
+"""Small dense Newton solves with implicit-function gradients, and their result codes."""
+
+from ._newton import (
+    CHORD_ITERATIONS as CHORD_ITERATIONS,
+    MAX_ITERATIONS as MAX_ITERATIONS,
+    NONFINITE as NONFINITE,
+    RESULT_MESSAGES as RESULT_MESSAGES,
+    SINGULAR_DIFFERENCE_MAP as SINGULAR_DIFFERENCE_MAP,
+    SUCCESS as SUCCESS,
+    NewtonStats as NewtonStats,
+    dense_solve as dense_solve,
+    newton_root as newton_root,
+)

@@ -1,0 +1,1 @@
+"""Studies behind the benchmarks and the command line: accuracy against run time (work precision)."""
