@@ -9,6 +9,7 @@ from . import (
     models as models,
     multisymplectic as multisymplectic,
 )
+from ._accuracy import AccuracyWarning as AccuracyWarning
 from ._diagnostics import (
     group_constraint_residual as group_constraint_residual,
     kelvin_noether as kelvin_noether,
@@ -16,6 +17,7 @@ from ._diagnostics import (
 from ._system import AbstractSystem as AbstractSystem, State as State, System as System
 from .engine import (
     NewtonFailure as NewtonFailure,
+    PerformanceWarning as PerformanceWarning,
     Solution as Solution,
     enable_fast_cpu_loops as enable_fast_cpu_loops,
     ensemble as ensemble,

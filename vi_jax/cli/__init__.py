@@ -7,13 +7,17 @@
 
 ``simulate underwater`` writes ``DIR/trajectory.npz`` (t, R, q, omega, nu, energy,
 kelvin_noether; leading axis = time) and PNG plots. Bad input is reported in one line with a
-non-zero exit status. The command line compiles small-step loops into single XLA:CPU kernels
+non-zero exit status (2); a failed step exits 1; a run whose energy error says it is
+meaningless (``vi_jax.AccuracyWarning``) writes its files, says so on stderr and exits 3.
+The command line compiles small-step loops into single XLA:CPU kernels
 (``vi_jax/engine/_cpu_tuning.py``) unless ``XLA_FLAGS`` already sets ``xla_backend_extra_options``.
 """
 
 import argparse
 import sys
-from pathlib import Path
+import warnings
+
+MEANINGLESS_EXIT = 3  # the run finished, but its energy error says the result is meaningless
 
 
 def _parser():
@@ -45,16 +49,23 @@ def main(argv=None):
     from ..engine import enable_fast_cpu_loops
 
     enable_fast_cpu_loops()  # before the first JAX computation of this process
+    from .._accuracy import AccuracyWarning
+
     args = _parser().parse_args(argv)
     try:
-        args.run(args)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", AccuracyWarning)
+            args.run(args)
     except ValueError as err:
         print(f"vi-jax: error: {err}", file=sys.stderr)
         return 2
     except RuntimeError as err:  # NewtonFailure and equinox runtime errors
         print(f"vi-jax: error: {str(err).splitlines()[0]}", file=sys.stderr)
         return 1
-    return 0
+    meaningless = [w for w in caught if issubclass(w.category, AccuracyWarning)]
+    for w in meaningless:
+        print(f"vi-jax: warning: {w.message} The files were written for inspection.", file=sys.stderr)
+    return MEANINGLESS_EXIT if meaningless else 0
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ def run_underwater(args):
     sol = vj.simulate(
         model, model.initial_state(), args.h, args.steps, tau=args.tau, order=args.order,
         save_every=args.save_every, progress=not args.no_progress,
+        device="cpu",  # a single trajectory is latency-bound on an accelerator (README: where to run)
     )
     args.out.mkdir(parents=True, exist_ok=True)
     np.savez(

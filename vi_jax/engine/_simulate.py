@@ -1,8 +1,6 @@
 """``simulate``: the DEP one-step map scanned over time, with per-step Newton statistics,
 node diagnostics and an optional progress bar."""
 
-import math
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -12,9 +10,13 @@ from .. import _validation as val
 from .._diagnostics import kelvin_noether, kelvin_noether_scale
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import AbstractSystem, State
-from ..discrete import composition_coefficients, dep_step, inverse_legendre, legendre_initial_state
+from ..discrete import composition_coefficients, inverse_legendre, legendre_initial_state
 from ..discrete._composition import ORDERS
 from ..lie import difference_map
+from .._accuracy import AccuracyWarning, warn_if_meaningless
+from ._advance import advance_loop, advance_scan
+from ._placement import placement
+from .._precision import full_precision
 
 
 class NewtonFailure(RuntimeError):
@@ -93,79 +95,6 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
     return h, n_steps, save_every, difference_map(tau)
 
 
-SAVE_BLOCK = 128  # saved nodes per inner scan (see _advance)
-
-
-def _advance(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter, checkpoint=False):
-    """``length`` saved nodes of ``save_every`` steps each; returns (final state, saved states, stats).
-
-    Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes): writing every
-    step's state straight into one long output buffer costs XLA:CPU more than the step itself
-    (benchmarks/step_cost.py). With ``checkpoint``, reverse mode stores only the state at block
-    boundaries (and at saved nodes) and recomputes the steps inside a block; the steps between
-    two saved nodes run as √save_every rematerialised blocks, so memory grows like
-    n/(SAVE_BLOCK·save_every) + SAVE_BLOCK + √save_every states (benchmarks/gradients.py).
-    """
-
-    def sub_step(state, gamma):
-        new, stats = dep_step(system, tau, rule, gamma * h, state, rtol=rtol, max_iterations=max_iter)
-        # After a failed step the state is NaN (and every later step reports NONFINITE): a
-        # partial Solution never continues from a state that did not solve the equations.
-        failed = stats.result != SUCCESS
-        return jax.tree.map(lambda x: jnp.where(failed, jnp.nan, x), new), stats
-
-    def one_step(state, _):
-        if len(gammas) == 1:
-            return sub_step(state, gammas[0])
-        # A rolled loop over the composition's sub-steps: one copy of the step to compile.
-        state, stats = jax.lax.scan(sub_step, state, jnp.asarray(gammas, h.dtype))
-        return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
-
-    def steps(state, n):
-        state, stats = jax.lax.scan(one_step, state, None, length=n)
-        return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
-
-    def node_steps(state):
-        if not checkpoint or save_every <= SAVE_BLOCK:
-            return steps(state, save_every)
-        # √save_every rematerialised blocks: reverse mode stores O(√save_every) step residuals.
-        inner = math.isqrt(save_every)
-        outer, rest = divmod(save_every, inner)
-        state, stats = jax.lax.scan(jax.checkpoint(lambda s, _: steps(s, inner)), state, None, length=outer)
-        stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
-        if rest:
-            state, more = steps(state, rest)
-            stats = jax.tree.map(jnp.maximum, stats, more)
-        return state, stats
-
-    def node(state, _):
-        state, stats = one_step(state, None) if save_every == 1 else node_steps(state)
-        return state, (state, stats)
-
-    if checkpoint:
-        node = jax.checkpoint(node)
-
-    def block(state, _):
-        return jax.lax.scan(node, state, None, length=SAVE_BLOCK)
-
-    if checkpoint:
-        block = jax.checkpoint(block)
-
-    n_blocks, rest = divmod(length, SAVE_BLOCK)
-    pieces = []
-    if n_blocks:
-        state, out = jax.lax.scan(block, state, None, length=n_blocks)
-        pieces.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out))
-    if rest:
-        state, out = jax.lax.scan(node, state, None, length=rest)
-        pieces.append(out)
-    saved, stats = jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
-    return state, saved, stats
-
-
-_advance_jit = eqx.filter_jit(_advance)
-
-
 def _node_diagnostics(system, states, rtol, max_iter):
     inv = jax.vmap(
         lambda g, q, M, P, z: inverse_legendre(system, g, q, M, P, z, rtol=rtol, max_iterations=max_iter)
@@ -194,7 +123,8 @@ def simulate(
     rtol=None,
     max_newton_iterations: int = 20,
     progress: bool = False,
-    checkpoint: bool = False,
+    checkpoint: bool = True,
+    device=None,
 ) -> Solution:
     """Integrate ``system`` from continuous initial data ``x0`` with the DEP scheme.
 
@@ -203,9 +133,18 @@ def simulate(
     The recursion starts from the continuous Legendre map (seed 000 spec §2). ``throw=True``
     raises :class:`NewtonFailure` (or an equinox runtime error under ``jit``) when a step fails;
     ``throw=False`` records it in ``Solution.result``. ``progress=True`` shows a progress bar
-    (outside ``jit`` only). Jittable, vmappable and differentiable (implicit-function gradients);
-    ``checkpoint=True`` makes reverse-mode memory grow with the number of saved nodes and blocks
-    rather than with the number of steps, at the price of recomputing the forward pass.
+    (outside ``jit`` only). Jittable, vmappable and differentiable (implicit-function gradients).
+    Reverse mode is checkpointed by default (memory grows with the number of saved nodes and
+    blocks, not with the number of steps; the forward pass is recomputed once);
+    ``checkpoint=False`` stores every step instead.
+
+    Called on concrete inputs, one compiled program serves every ``n_steps`` and ``save_every``
+    with the same saved-node capacity (a power of two): the step counts are traced integers.
+    Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths.
+    A conservative run whose energy error says it is meaningless warns (:class:`AccuracyWarning`).
+    ``device``: where a concrete run executes — None (the default device; on an accelerator a
+    one-time :class:`PerformanceWarning`: single trajectories are latency-bound there), "cpu" or
+    a ``jax.Device``.
     """
     h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau, order, save_every)
     rule, gammas = composition_coefficients(order)
@@ -217,15 +156,33 @@ def simulate(
     cast = lambda x: None if x is None else jnp.asarray(x, dtype)  # noqa: E731
     x0 = State(cast(x0.g), cast(x0.xi), cast(x0.q), cast(x0.qdot))
     n_saved = n_steps // save_every
-    options = dict(
-        tau=tau, rule=rule, gammas=gammas, save_every=save_every, rtol=rtol,
-        max_iter=max_newton_iterations, checkpoint=bool(checkpoint),
-    )
-    if progress and val.is_concrete((system, x0, h)):
-        sol = _simulate_with_progress(system, x0, h, n_saved, **options)
-    else:
-        sol = _simulate_jit(system, x0, h, n_saved, **options)
-    return _check_failure(sol, save_every) if throw else sol
+    options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
+    with full_precision():
+        if not val.is_concrete((system, x0, h)):
+            sol = _simulate_scan(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
+        elif progress:
+            with placement(device):
+                sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **options)
+        else:
+            with placement(device):
+                count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
+                sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **options)
+                sol = _rows(sol, n_saved + 1)
+    if throw:
+        sol = _check_failure(sol, save_every)
+    warn_if_meaningless(sol.energy, "simulate")
+    return sol
+
+
+def _capacity(n_saved: int) -> int:
+    """Saved-node buffer size: the next power of two (one program per capacity)."""
+    return 1 << max(n_saved - 1, 0).bit_length()
+
+
+def _rows(sol, n):
+    """The first ``n`` rows, sliced on the host: an eager device slice would compile a small
+    program for every new ``n``."""
+    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], next(iter(x.devices()))), sol)
 
 
 def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
@@ -249,35 +206,52 @@ def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
     )
 
 
+def _initial(system, x0):
+    return legendre_initial_state(system, x0.g, x0.xi, x0.q, x0.qdot)
+
+
 @eqx.filter_jit
-def _simulate_jit(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter, checkpoint):
-    state0 = legendre_initial_state(system, x0.g, x0.xi, x0.q, x0.qdot)
-    _, saved, stats = _advance(
-        system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter, checkpoint
-    )
+def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter, checkpoint):
+    state0 = _initial(system, x0)
+    _, saved, stats = advance_scan(system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter, checkpoint)
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
-def _simulate_with_progress(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter, checkpoint):
-    """The same computation in ≤ 100 jitted pieces, with a tqdm bar between them."""
+@eqx.filter_jit
+def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
+    state0 = _initial(system, x0)
+    _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
+    return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
+
+
+_initial_jit = eqx.filter_jit(_initial)
+_advance_loop_jit = eqx.filter_jit(advance_loop)
+_assemble_jit = eqx.filter_jit(_assemble)
+
+
+def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, gammas, rtol, max_iter):
+    """The same computation in ≤ 100 pieces of one compiled loop, with a tqdm bar between them."""
     from tqdm.auto import tqdm
 
-    state = legendre_initial_state(system, x0.g, x0.xi, x0.q, x0.qdot)
-    state0 = state
+    state0 = state = _initial_jit(system, x0)
     n_chunks = min(n_saved, 100)
     sizes = [n_saved // n_chunks + (i < n_saved % n_chunks) for i in range(n_chunks)]
+    capacity = _capacity(sizes[0])
+    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
     saved_parts, stats_parts = [], []
     with tqdm(total=n_saved * save_every, unit="step", desc="simulate") as bar:
         for size in sizes:
-            state, saved, stats = _advance_jit(
-                system, tau, rule, gammas, h, state, size, save_every, rtol, max_iter, checkpoint
+            state, saved, stats = _advance_loop_jit(
+                system, tau, rule, gammas, h, state, count(size), count(save_every), capacity, rtol, max_iter
             )
-            saved_parts.append(saved)
-            stats_parts.append(stats)
+            saved_parts.append(jax.tree.map(lambda x: x[:size], saved))
+            stats_parts.append(jax.tree.map(lambda x: x[:size], stats))
             bar.update(size * save_every)
-    cat = lambda *xs: jnp.concatenate(xs)  # noqa: E731
+    # Pad to the power-of-two capacity so the node diagnostics compile once per capacity too.
+    total = _capacity(n_saved)
+    cat = lambda *xs: jnp.concatenate(xs + (jnp.broadcast_to(xs[-1][-1:], (total - n_saved,) + xs[-1].shape[1:]),))  # noqa: E731
     saved, stats = jax.tree.map(cat, *saved_parts), jax.tree.map(cat, *stats_parts)
-    return eqx.filter_jit(_assemble)(system, state0, saved, stats, h, save_every, rtol, max_iter)
+    return _rows(_assemble_jit(system, state0, saved, stats, h, count(save_every), rtol, max_iter), n_saved + 1)
 
 
 def _check_failure(sol: Solution, save_every: int) -> Solution:

@@ -20,6 +20,7 @@ from ._noether import (
     triangle_momentum_maps as triangle_momentum_maps,
 )
 from ._space import SpaceMarch as SpaceMarch, space_march as space_march
+from ._space_dirichlet import space_march_dirichlet as space_march_dirichlet
 from ._symplectic import (
     field_variation as field_variation,
     multisymplectic_formula as multisymplectic_formula,

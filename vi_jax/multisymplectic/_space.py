@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _validation as val
+from .._precision import full_precision
 from ..lie import difference_map
 from . import _march
 from ._noether import space_energy_density, spatial_sum
@@ -83,11 +84,12 @@ def space_march(
     dtype = jnp.result_type(g_col0, g_col1, dt, ds)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
-    sol = _space_march_jit(
-        _march.cast_system(system, dtype), *(jnp.asarray(x, dtype) for x in (g_col0, g_col1, dt, ds)),
-        n_columns=n_columns, tau=difference_map(tau),
-        rtol=default_rtol(dtype) if rtol is None else float(rtol), max_iterations=int(max_newton_iterations),
-    )
+    with full_precision():
+        sol = _space_march_jit(
+            _march.cast_system(system, dtype), *(jnp.asarray(x, dtype) for x in (g_col0, g_col1, dt, ds)),
+            n_columns=n_columns, tau=difference_map(tau),
+            rtol=default_rtol(dtype) if rtol is None else float(rtol), max_iterations=int(max_newton_iterations),
+        )
 
     def where(column, row):
         return f"column {column} (s ≈ {column * float(ds):.6g}), time row {row} (t ≈ {row * float(dt):.6g})"

@@ -10,6 +10,8 @@ import jax
 import jax.numpy as jnp
 
 from .. import _validation as val
+from .._accuracy import warn_if_meaningless
+from .._precision import full_precision
 from ..lie import difference_map
 from . import _march
 from ._lagrangian import AbstractCovariantSystem
@@ -130,7 +132,8 @@ def time_march(
     (torque, force) per unit length, F̄¹ = ΔsΔt f (eq. 39). Each step is one vmapped dim-r Newton
     solve per node; jittable, vmappable and differentiable (implicit-function gradients).
     ``throw=True`` raises :class:`MarchFailure` when a solve fails; ``throw=False`` records it in
-    ``result``. ``progress=True`` shows a progress bar (outside ``jit``).
+    ``result``. Without ``force`` the march is conservative: an energy error that says the run is
+    meaningless warns (:class:`vi_jax.AccuracyWarning`). ``progress=True`` shows a progress bar (outside ``jit``).
     """
     g0, xi0, g1, dt, ds, n_steps, save_every = _validate(
         system, g0, xi0, g1, dt, ds, n_steps, boundary, force, save_every
@@ -145,18 +148,22 @@ def time_march(
         boundary=boundary, force=force, tau=difference_map(tau),
         rtol=default_rtol(dtype) if rtol is None else float(rtol), max_iterations=int(max_newton_iterations),
     )
-    if progress and val.is_concrete((system, args)):
-        engine, carry = _start_jit(system, *args, **options)
-        rows = _march.run(engine, carry, n_steps, save_every, progress=True)
-        sol = _assemble_jit(engine, rows, save_every)
-    else:
-        sol = _time_march_jit(system, *args, n_steps=n_steps, save_every=save_every, **options)
+    with full_precision():
+        if progress and val.is_concrete((system, args)):
+            engine, carry = _start_jit(system, *args, **options)
+            rows = _march.run(engine, carry, n_steps, save_every, progress=True)
+            sol = _assemble_jit(engine, rows, save_every)
+        else:
+            sol = _time_march_jit(system, *args, n_steps=n_steps, save_every=save_every, **options)
 
     def where(row, node):
         rows = f"row {row}" if save_every == 1 else f"rows {row * save_every}..{(row + 1) * save_every - 1}"
         return f"time {rows} (t ≈ {row * save_every * float(dt):.6g} s), node {node}"
 
-    return _march.check_failure(sol, sol.result, where, throw)
+    sol = _march.check_failure(sol, sol.result, where, throw)
+    if force is None:  # conservative: the energy error measures the run's meaning
+        warn_if_meaningless(sol.energy, "time_march")
+    return sol
 
 
 def _start(system, g0, xi0, g1, dt, ds, *, boundary, force, tau, rtol, max_iterations):

@@ -1,0 +1,75 @@
+"""Runs that are meaningless or needlessly slow are never silent: ``vj.simulate`` and the beam's
+time march warn when their own energy error says the result is meaningless (``vj.AccuracyWarning``;
+the command line says so on stderr and exits 3), a sound run says nothing, and a single trajectory
+on an accelerator warns once (``vj.PerformanceWarning``)."""
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+import vi_jax as vj
+from vi_jax._accuracy import MEANINGLESS_ENERGY_ERROR, energy_error
+from vi_jax.cli import MEANINGLESS_EXIT, main
+
+
+def test_energy_error_is_relative_to_the_initial_energy_over_the_finite_values():
+    assert energy_error(jnp.asarray([2.0, 2.5, 1.0])) == pytest.approx(0.5)
+    assert energy_error(jnp.asarray([2.0, 2.2, jnp.nan])) == pytest.approx(0.1)  # a failure's NaN: reported by result
+    # E₀ = 0: measured against the largest |E| along the run.
+    assert energy_error(jnp.asarray([0.0, 1.0, -3.0])) == pytest.approx(1.0)
+
+
+def test_simulate_warns_on_a_meaningless_step_and_not_on_a_sound_one():
+    model = vj.models.UnderwaterVehicle()
+    with pytest.warns(vj.AccuracyWarning, match="Reduce h"):
+        sol = vj.simulate(model, model.initial_state(), 1e6, 10)
+    assert energy_error(sol.energy) > MEANINGLESS_ENERGY_ERROR
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", vj.AccuracyWarning)
+        sol = vj.simulate(model, model.initial_state(), 0.01, 500)
+    assert energy_error(sol.energy) < 1e-3
+
+
+def test_cli_flags_a_meaningless_run_and_passes_a_sound_one(tmp_path, capsys):
+    code = main(["simulate", "underwater", "--h", "1e6", "--steps", "10", "--out", str(tmp_path / "bad"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == MEANINGLESS_EXIT and "vi-jax: warning:" in err and "energy error" in err
+    assert (tmp_path / "bad" / "trajectory.npz").exists()  # written for inspection
+    code = main(["simulate", "underwater", "--steps", "500", "--out", str(tmp_path / "good"), "--no-progress"])
+    assert code == 0 and "warning" not in capsys.readouterr().err
+
+
+def test_beam_time_march_warns_on_a_step_past_its_stability_limit():
+    model = vj.models.GeometricallyExactBeam()
+    n = 6
+    ds = float(model.length) / n
+    g0, xi0 = model.initial_state(n)
+    dt_stable = float(model.stable_time_step(ds))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", vj.AccuracyWarning)
+        vj.multisymplectic.time_march(model, g0, xi0=xi0, dt=0.5 * dt_stable, ds=ds, n_steps=50)
+    with pytest.warns(vj.AccuracyWarning):
+        sol = vj.multisymplectic.time_march(model, g0, xi0=xi0, dt=1.2 * dt_stable, ds=ds, n_steps=20)
+    # 20 % past the stable step the solves still converge (they fail from row ~30), but the energy
+    # has grown by orders of magnitude: only the energy says the run is meaningless.
+    assert bool(sol.succeeded)
+
+
+def test_single_trajectory_on_an_accelerator_warns_once_and_device_cpu_runs_on_the_host(monkeypatch):
+    from vi_jax.engine import _placement
+
+    monkeypatch.setattr(_placement, "_accelerator_default", lambda: True)
+    monkeypatch.setattr(_placement, "_warned", False)
+    model = vj.models.RigidBody()
+    x0 = model.initial_state()
+    with pytest.warns(vj.PerformanceWarning, match="device='cpu'"):
+        vj.simulate(model, x0, 0.01, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", vj.PerformanceWarning)
+        vj.simulate(model, x0, 0.01, 20)  # once only
+        sol = vj.simulate(model, x0, 0.01, 20, device="cpu")
+    assert sol.g.devices() == {jax.devices("cpu")[0]}
+    with pytest.raises(ValueError, match="device"):
+        vj.simulate(model, x0, 0.01, 20, device="tpu")

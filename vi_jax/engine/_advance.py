@@ -1,0 +1,128 @@
+"""Advancing a DEP state over many steps, saving nodes: two loop programs with the same step.
+
+* :func:`advance_scan` — static lengths (``lax.scan``): forward- and reverse-differentiable,
+  with optional rematerialisation (``checkpoint``). Used whenever ``simulate`` is traced
+  (under ``jit``, ``grad``, ``jvp``, ``vmap``).
+* :func:`advance_loop` — the number of nodes and the steps per node are *traced* integers
+  (``lax.fori_loop`` → ``while``) writing into a buffer of static ``capacity``: one compiled
+  program serves every ``n_steps`` whose node count fits the capacity (``simulate`` rounds
+  the capacity up to a power of two). Not reverse-differentiable, so used only on concrete
+  inputs, where nothing differentiates the call.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from ..discrete import dep_step
+from ..solvers import SUCCESS
+
+
+def _sub_step(system, tau, rule, rtol, max_iter):
+    def sub_step(state, gamma_h):
+        new, stats = dep_step(system, tau, rule, gamma_h, state, rtol=rtol, max_iterations=max_iter)
+        # After a failed step the state is NaN (and every later step reports NONFINITE): a
+        # partial Solution never continues from a state that did not solve the equations.
+        failed = stats.result != SUCCESS
+        return jax.tree.map(lambda x: jnp.where(failed, jnp.nan, x), new), stats
+
+    return sub_step
+
+
+def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
+    """One (composed) step; Newton statistics are the worst over its sub-steps."""
+    sub_step = _sub_step(system, tau, rule, rtol, max_iter)
+
+    def one_step(state, _=None):
+        if len(gammas) == 1:
+            return sub_step(state, gammas[0] * h)
+        # A rolled loop over the composition's sub-steps: one copy of the step to compile.
+        state, stats = jax.lax.scan(sub_step, state, jnp.asarray(gammas, h.dtype) * h)
+        return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+
+    return one_step
+
+
+SAVE_BLOCK = 128  # saved nodes per inner scan (see _advance)
+
+
+def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter, checkpoint=False):
+    """``length`` saved nodes of ``save_every`` steps each; returns (final state, saved states, stats).
+
+    Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes): writing every
+    step's state straight into one long output buffer costs XLA:CPU more than the step itself
+    (benchmarks/step_cost.py). With ``checkpoint``, reverse mode stores only the state at block
+    boundaries (and at saved nodes) and recomputes the steps inside a block; the steps between
+    two saved nodes run as √save_every rematerialised blocks, so memory grows like
+    n/(SAVE_BLOCK·save_every) + SAVE_BLOCK + √save_every states (benchmarks/gradients.py).
+    """
+
+    one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
+
+    def steps(state, n):
+        state, stats = jax.lax.scan(one_step, state, None, length=n)
+        return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+
+    def node_steps(state):
+        if not checkpoint or save_every <= SAVE_BLOCK:
+            return steps(state, save_every)
+        # √save_every rematerialised blocks: reverse mode stores O(√save_every) step residuals.
+        inner = math.isqrt(save_every)
+        outer, rest = divmod(save_every, inner)
+        state, stats = jax.lax.scan(jax.checkpoint(lambda s, _: steps(s, inner)), state, None, length=outer)
+        stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+        if rest:
+            state, more = steps(state, rest)
+            stats = jax.tree.map(jnp.maximum, stats, more)
+        return state, stats
+
+    def node(state, _):
+        state, stats = one_step(state, None) if save_every == 1 else node_steps(state)
+        return state, (state, stats)
+
+    if checkpoint:
+        node = jax.checkpoint(node)
+
+    def block(state, _):
+        return jax.lax.scan(node, state, None, length=SAVE_BLOCK)
+
+    if checkpoint:
+        block = jax.checkpoint(block)
+
+    n_blocks, rest = divmod(length, SAVE_BLOCK)
+    pieces = []
+    if n_blocks:
+        state, out = jax.lax.scan(block, state, None, length=n_blocks)
+        pieces.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out))
+    if rest:
+        state, out = jax.lax.scan(node, state, None, length=rest)
+        pieces.append(out)
+    saved, stats = jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
+    return state, saved, stats
+
+
+def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter):
+    """``n_nodes`` (traced, ≤ ``capacity``) saved nodes of ``save_every`` (traced) steps each.
+
+    Returns (final state, saved states, stats), the last two with ``capacity`` rows; rows past
+    ``n_nodes`` repeat the initial state (valid data for the node diagnostics) with zero stats.
+    """
+    one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
+    _, stats0 = jax.eval_shape(one_step, state)
+    saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), state)
+    stats = jax.tree.map(lambda s: jnp.zeros((capacity,) + s.shape, s.dtype), stats0)
+
+    def step(_, carry):
+        state, worst = carry
+        state, s = one_step(state)
+        return state, jax.tree.map(jnp.maximum, worst, s)
+
+    def node(k, carry):
+        state, saved, stats = carry
+        zero = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats0)
+        state, worst = jax.lax.fori_loop(0, save_every, step, (state, zero))
+        put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k, 0)  # noqa: E731
+        return state, jax.tree.map(put, saved, state), jax.tree.map(put, stats, worst)
+
+    return jax.lax.fori_loop(0, n_nodes, node, (state, saved, stats))
