@@ -21,6 +21,7 @@ from vi_jax.models._beam import GeometricallyExactBeam
 SE3 = lie.SE3()
 E6 = jnp.eye(6)[5]
 RNG = np.random.default_rng(3)
+EPS = np.finfo(np.float64).eps
 
 
 @pytest.fixture(autouse=True)
@@ -28,6 +29,15 @@ def _reseed():
     """The same random data for a test whether it runs alone or in the suite."""
     global RNG
     RNG = np.random.default_rng(3)
+
+
+def dcel_round_off(model, g, dt, ds):
+    """Bound on the DCEL residual (68) of a beam field g that solves it. The residual recomputes
+    ξ = cay⁻¹(g⁻¹g')/Δt and η = cay⁻¹(g⁻¹g'')/Δs from configurations rounded to ε·max|g|, so each
+    of its four momentum terms (𝕁ξ/Δt, 𝕂η/Δs) carries ≲ 4ε·max|g|·(𝕁/Δt² + 𝕂/Δs²); 16× covers
+    their sum (measured ≤ 1.4×). Newton's own tolerance (64ε·|μ|/Δt) lies far below this."""
+    stiffness = float(jnp.max(model.inertia / dt**2 + model.stiffness / ds**2))
+    return 16 * EPS * float(jnp.max(jnp.abs(g))) * stiffness
 
 
 def rel_err(a, b, scale=None):
@@ -220,10 +230,9 @@ def test_free_free_march_solves_the_dcel_and_covariant_noether_on_rectangles():
     model, ds, dt, _, _ = beam_setup()
     sol = free_beam_run()
     g = sol.g[:40]  # rows 0..39 of the field, free end included
-    res, P, J, J_time = _field_checks(model, g, dt, ds)
-    scale = max(float(jnp.max(jnp.abs(p))) for p in P) / (ds * dt)
+    res, _, J, J_time = _field_checks(model, g, dt, ds)
     # (82) at inner rows and every column; (83): the free ends, node 0 and the slaved node A
-    assert float(jnp.max(jnp.abs(res[1:-1]))) <= 1e-11 * scale
+    assert float(jnp.max(jnp.abs(res[1:-1]))) <= dcel_round_off(model, g, dt, ds)
     for _ in range(5):
         K, L = sorted(RNG.choice(38, 2, replace=False))
         B, C = sorted(RNG.choice(N_NODES, 2, replace=False))
@@ -273,7 +282,9 @@ def test_vmap_in_float32_matches_the_float64_run():
     batch = f32(jnp.stack([xi0, 1.1 * xi0]))
     sols = jax.vmap(lambda x: ms.time_march(model, f32(g0), xi0=x, dt=f32(dt), ds=f32(ds), n_steps=60))(batch)
     assert sols.g.dtype == jnp.float32 and sols.g.shape == (2, 61) + ref.g.shape[1:] and bool(sols.succeeded)
-    assert rel_err(sols.g[0], ref.g[:61]) <= 1e-5
+    # a few ε₃₂ per step adding like a random walk: 30√60·ε₃₂ = 2.8e-5 (a 6ε₃₂ step at 5σ); measured
+    # 1.2e-6 on CPU; TF32 products (unit round-off 2⁻¹¹) gave 2.8e-4 on an H100
+    assert rel_err(sols.g[0], ref.g[:61]) <= 30 * np.sqrt(60) * np.finfo(np.float32).eps
     J = np.asarray(sols.momentum, np.float64)
     assert np.max(np.abs(J - J[:, :1])) <= 1e-5 * np.max(np.abs(J))
 
@@ -293,7 +304,7 @@ def test_uniform_force_changes_linear_momentum_by_its_impulse():
     assert np.max(np.abs(expected - P[0])) > 1e-3 * np.max(np.abs(P[0]))  # the force matters
     assert rel_err(P, expected) <= 1e-12
     res = ms.dcel_residual(model, sol.g, dt=dt, ds=ds, force=force)
-    assert float(jnp.max(jnp.abs(res[1:-1]))) <= 1e-11 * float(jnp.max(jnp.abs(sol.mu))) / dt
+    assert float(jnp.max(jnp.abs(res[1:-1]))) <= dcel_round_off(model, sol.g, dt, ds)
 
 
 def test_clamped_free_keeps_the_clamp_conserves_energy_and_solves_the_dcel():
@@ -305,9 +316,9 @@ def test_clamped_free_keeps_the_clamp_conserves_energy_and_solves_the_dcel():
     # bounded: the band (O(Δt) for the spec's E_L, K taken at ξ^j) does not grow
     assert np.ptp(rel) <= 2e-2 and np.ptp(rel[N_STEPS // 2 :]) <= 1.1 * np.ptp(rel[: N_STEPS // 2])
     res = ms.dcel_residual(model, sol.g[:60], dt=dt, ds=ds)
-    scale = float(jnp.max(jnp.abs(sol.mu))) / dt
-    assert float(jnp.max(jnp.abs(res[1:-1, 1:]))) <= 1e-11 * scale  # (82)–(83) away from the clamp
-    assert float(jnp.max(jnp.abs(res[1:-1, 0]))) > 1e-6 * scale  # the clamp's reaction
+    # (82)–(83) away from the clamp; at the clamp, its reaction
+    assert float(jnp.max(jnp.abs(res[1:-1, 1:]))) <= dcel_round_off(model, sol.g[:60], dt, ds)
+    assert float(jnp.max(jnp.abs(res[1:-1, 0]))) > 1e-6 * float(jnp.max(jnp.abs(sol.mu))) / dt
 
 
 # --- rigid-body limit: order 2 with the consistent start -----------------------------------------
@@ -346,7 +357,8 @@ def test_rigid_body_limit_converges_at_order_two():
         errors.append(float(jnp.max(jnp.abs(sol.g[int(round(2.0 / h)), 0] - g_ref))))
     slope = np.polyfit(np.log(hs), np.log(errors), 1)[0]
     assert 1.95 <= slope <= 2.05, (errors, slope)
-    np.testing.assert_allclose(errors, [1.79e-3, 4.48e-4, 1.12e-4, 2.80e-5], rtol=5e-3)  # spec §5 test 5
+    # spec §5 test 5, printed to 3 digits (rounding ≤ 4.5e-3 relative, at 1.12e-4)
+    np.testing.assert_allclose(errors, [1.79e-3, 4.48e-4, 1.12e-4, 2.80e-5], rtol=5e-3)
 
 
 # --- the linear wave equation: leapfrog, exact at Courant number 1 ------------------------------
@@ -429,7 +441,10 @@ def test_space_march_conserves_its_momentum_map_and_is_symplectic():
     J = np.asarray(sol.momentum)
     scale = dt * np.sum(np.abs(np.asarray(sol.lam)), axis=(0, 2))
     assert np.max(np.abs(J - J[0]).max(axis=1) / scale) <= 1e-9 and np.max(np.abs(J[0])) > 1e-2
-    np.testing.assert_allclose(ms.space_momentum_map(model, sol.g, dt=dt, ds=ds), J[:-1], rtol=1e-12, atol=1e-14)
+    # 𝖩 sums the march's own λ; space_momentum_map recomputes η = cay⁻¹(g⁻¹g'')/Δs from the field,
+    # so each of its N terms Δt·Ad*λ is off by ≲ 4ε·max|g|²·𝕂/Δs
+    floor = N * dt * 4 * EPS * float(jnp.max(jnp.abs(sol.g))) ** 2 * float(jnp.max(model.stiffness)) / ds
+    np.testing.assert_allclose(ms.space_momentum_map(model, sol.g, dt=dt, ds=ds), J[:-1], rtol=0, atol=floor)
     omega, size = ms.space_map_symplecticity(model, col0, col1, V, W, dt=dt, ds=ds, n_columns=6)
     omega, size = np.asarray(omega), np.asarray(size)
     assert abs(omega[0]) > 1e-3 * size[0]
@@ -446,6 +461,7 @@ def test_paper_scenario_reproduces_anchors_and_warns():
     with pytest.warns(UserWarning, match="Newton failed at column"):
         sol = ms.space_march(model, col0, col1, dt=0.04, ds=0.02, n_columns=41, throw=False)
     np.testing.assert_allclose(sol.eta[0, 0], E6, atol=1e-12)
+    # anchors printed to 4 decimals (rounding ≤ 5e-5); η of column 0 comes from the data alone
     np.testing.assert_allclose(sol.eta[25, 0], [1.8524, 0.0323, -2.9688, -0.7367, 0.0449, 1.1886], atol=1e-4)
     np.testing.assert_allclose(sol.eta[50, 0], [0.8455, -0.0275, -6.3259, -1.4181, 0.1394, 1.9654], atol=1e-4)
     assert 2 <= sol.valid_columns < 41

@@ -19,6 +19,22 @@ SO4_BODY = vj.models.RigidBody(group=SOn(4), mass_matrix=(0.6, 0.45, 0.3, 0.1))
 H = 0.1
 N = 10_000  # one compiled run per (group, form), shared by the tests below
 N_EQUIV = 1000  # nodes compared between implementations (trajectories separate at round-off rate)
+EPS = np.finfo(np.float64).eps
+
+
+def round_off(n, scale=1.0, eps=EPS):
+    """Bound on the drift of a quantity the scheme conserves exactly, after n steps: each step
+    rounds it by a few ε·scale, uncorrelated from step to step, so the errors add like a random
+    walk: 30·√n·ε·scale covers a 6ε step at 5σ (measured ≤ 2.7·√n·ε here, on two machines). A
+    bias of one ε per step would cross it after 900 steps."""
+    return 30 * np.sqrt(n) * eps * scale
+
+
+def separation(n, rate, scale):
+    """Bound on the distance after n steps of two roundings of the same map (another formula,
+    vmap, a generic engine): their invariants part like a random walk (√n·ε), which the flow
+    shears into a phase error growing like rate·t, rate = |Ω| (measured ≤ 0.04 of this)."""
+    return 10 * EPS * np.sqrt(n) * (1 + rate * n * H) * scale
 
 
 def unit_momentum_state(body, omega):
@@ -92,14 +108,14 @@ def test_exact_invariants_over_ten_thousand_steps(form):
     """|μ̃| and the spatial momentum Q μ̃ Qᵀ to round-off; Q ∈ SO(3); energy bounded, no drift."""
     sol = run("SO3", form)
     norms = np.linalg.norm(np.asarray(sol.mu), axis=1)
-    assert np.max(np.abs(norms / norms[0] - 1)) <= 1e-13
-    assert relative_drift(sol.spatial) <= 1e-13
+    assert np.max(np.abs(norms / norms[0] - 1)) <= round_off(N)  # measured ≤ 0.9·√N·ε
+    assert relative_drift(sol.spatial) <= round_off(N)  # measured ≤ 1.1·√N·ε
     assert float(jnp.max(vj.group_constraint_residual(BODY, sol.Q))) <= 1e-12
     energy = np.asarray(sol.energy) / float(sol.energy[0]) - 1
     assert np.max(np.abs(energy)) <= 1e-3
     slope = np.polyfit(np.asarray(sol.t), energy, 1)[0]
     assert abs(slope) * float(sol.t[-1]) <= 0.05 * np.ptp(energy)
-    assert np.max(np.asarray(sol.newton_residual)) <= 1e-13
+    assert np.max(np.asarray(sol.newton_residual)) <= 1e-13  # Newton's stopping test: ≤ rtol = 64ε
     if form == "clebsch":  # eq. (18): Proj(QᵀP) = 𝕀X
         M = jnp.einsum("kji,kjl->kil", sol.Q, sol.P)
         np.testing.assert_allclose(jax.vmap(BODY.group.vee)(M), sol.Pi, rtol=0, atol=1e-13)
@@ -126,8 +142,8 @@ def test_spectrum_of_momentum_conserved_on_so4(form):
     10⁴ steps; Q ∈ SO(4). Control: the spectrum of the Clebsch momentum 𝕀X moves."""
     sol = run("SO4", form)
     spectrum = spectrum_so4(sol.mu)
-    assert np.max(np.abs(spectrum - spectrum[0])) <= 1e-13 * spectrum[0, 0]
-    assert relative_drift(sol.spatial) <= 1e-13
+    assert np.max(np.abs(spectrum - spectrum[0])) <= round_off(N, spectrum[0, 0])  # measured ≤ 1.2·√N·ε
+    assert relative_drift(sol.spatial) <= round_off(N)  # measured ≤ 2.7·√N·ε
     assert float(jnp.max(vj.group_constraint_residual(SO4_BODY, sol.Q))) <= 1e-12
     spectrum_Pi = spectrum_so4(sol.Pi)
     assert np.max(np.abs(spectrum_Pi - spectrum_Pi[0])) >= 1e-5 * spectrum_Pi[0, 0]
@@ -137,10 +153,13 @@ def test_spectrum_of_momentum_conserved_on_so4(form):
 def test_clebsch_form_equals_lie_poisson_form(case):
     """Theorem 28 (ambient P, corrected transpose) and the reduced form give the same X^k."""
     a, b = run(case, "lie_poisson"), run(case, "clebsch")
+    rate = float(jnp.max(jnp.abs(a.omega)))
     for x, y in ((a.omega, b.omega), (a.Q, b.Q), (a.mu, b.mu)):
-        assert float(jnp.max(jnp.abs(x[:N_EQUIV] - y[:N_EQUIV]))) <= 1e-12
+        gap = float(jnp.max(jnp.abs(x[:N_EQUIV] - y[:N_EQUIV])))
+        assert gap <= separation(N_EQUIV, rate, float(jnp.max(jnp.abs(x)))), gap
     M = jnp.einsum("kji,kjl->kil", b.Q, b.P)
-    assert float(jnp.max(jnp.abs(M + jnp.swapaxes(M, 1, 2)))) <= 1e-13  # congruences keep QᵀP skew
+    skew = float(jnp.max(jnp.abs(M + jnp.swapaxes(M, 1, 2))))  # congruences keep QᵀP skew
+    assert skew <= round_off(N, float(jnp.max(jnp.abs(M)))), skew  # measured ≤ 1.7·√N·ε
 
 
 @pytest.mark.parametrize("case,order", [("SO3", 1), ("SO3", 2), ("SO4", 2)])
@@ -151,8 +170,10 @@ def test_equals_generic_dep_cayley_step(case, order):
     body, x0 = CASES[case]
     ours = run(case, "lie_poisson")
     engine = vj.simulate(body, x0, H, N_EQUIV, tau="cayley", order=order)
-    assert float(jnp.max(jnp.abs(ours.Q[: N_EQUIV + 1] - engine.g))) <= 2e-12
-    assert float(jnp.max(jnp.abs(ours.mu[: N_EQUIV + 1] - engine.M))) <= 1e-12
+    rate = float(jnp.max(jnp.abs(engine.xi)))
+    for x, y in ((ours.Q[: N_EQUIV + 1], engine.g), (ours.mu[: N_EQUIV + 1], engine.M)):
+        gap = float(jnp.max(jnp.abs(x - y)))
+        assert gap <= separation(N_EQUIV, rate, float(jnp.max(jnp.abs(y)))), gap
 
 
 def test_vmap_over_initial_data_equals_single_run():
@@ -160,8 +181,10 @@ def test_vmap_over_initial_data_equals_single_run():
     batched = jax.vmap(lambda w: clebsch.simulate(BODY, vj.State(X0.g, w), H, N, throw=False))(omegas)
     assert bool(jnp.all(batched.result == 0))
     single = run("SO3", "lie_poisson")
-    np.testing.assert_allclose(batched.mu[0], single.mu, rtol=0, atol=1e-14)
-    np.testing.assert_allclose(batched.Q[0], single.Q, rtol=0, atol=1e-14)
+    # batching may reorder XLA's arithmetic (it does not on CPU today: equal bits)
+    rate = float(jnp.max(jnp.abs(single.omega)))
+    np.testing.assert_allclose(batched.mu[0], single.mu, rtol=0, atol=separation(N, rate, 1.0))
+    np.testing.assert_allclose(batched.Q[0], single.Q, rtol=0, atol=separation(N, rate, 1.0))
 
 
 def test_implicit_gradient_matches_finite_differences():
@@ -201,4 +224,5 @@ def test_float32_runs_at_its_precision():
     sol = clebsch.simulate(BODY, x0, np.float32(H), 1000)
     assert sol.mu.dtype == sol.Q.dtype == jnp.float32
     norms = np.linalg.norm(np.asarray(sol.mu), axis=1)
-    assert np.max(np.abs(norms / norms[0] - 1)) <= 1e-5
+    # measured 10ε₃₂ = 0.3·√n·ε₃₂; TF32 products (unit round-off 2⁻¹¹ ≈ 4e-4, 4× the bound) fail it
+    assert np.max(np.abs(norms / norms[0] - 1)) <= round_off(1000, eps=np.finfo(np.float32).eps)

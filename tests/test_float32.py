@@ -38,11 +38,16 @@ def test_vehicle_runs_in_float32():
     proc = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
+    n, eps = 100_000, float(np.finfo(np.float32).eps)
     for tau, r in result.items():
         assert r["dtype"] == "float32", tau
         assert r["finite"], tau
         assert r["kn"] <= 1e-3, (tau, r)
-        assert r["energy"] <= 1e-2, (tau, r)
+        # The O(h) energy band of this scene is 3.2e-3 (the same run in float64: 3.19e-3 Cayley,
+        # 3.21e-3 exp); float32 adds a round-off drift, biased (docs/stability.md), so at worst
+        # linear: ≤ n·ε₃₂ = 1.2e-2 (measured: it moves the maximum by ≤ 2e-5).
+        assert r["energy"] <= 3.3e-3 + n * eps, (tau, r)
         # Round-off in R ← RΛ is a random walk: ‖RᵀR − I‖ ~ √n·ε₃₂ (measured 1.3e-4 and 4.5e-5
-        # after 1e5 steps, i.e. 3.5 and 1.2 √n·ε₃₂); a drift linear in n would reach ~1e-2.
-        assert r["orthogonality"] <= 10 * math.sqrt(100_000) * float(np.finfo(np.float32).eps), (tau, r)
+        # after 1e5 steps, i.e. 3.5 and 1.2 √n·ε₃₂; 30√n·ε₃₂ covers a 6ε₃₂ step at 5σ); a drift
+        # linear in n would reach ~1e-2.
+        assert r["orthogonality"] <= 30 * math.sqrt(n) * eps, (tau, r)

@@ -15,6 +15,14 @@ from vi_jax.lie import SO3, SOn
 # SOn(3) coordinates (x01, x02, x12) = (x3, −x2, x1) of the SO3 cross-product convention.
 SO3_TO_SON3 = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
 N = 1000  # steps of every run (order 2): runs of equal structure share one compilation
+EPS = np.finfo(np.float64).eps
+
+
+def separation(rate, t, scale):
+    """Bound on the distance after N steps (time t) of two roundings of the same map (here SO3's
+    closed forms against SOn(3)'s generic ones): their invariants part like a random walk
+    (√N·ε), which the flow shears into a phase error growing like rate·t, rate = |ω|."""
+    return 10 * EPS * np.sqrt(N) * (1 + rate * t) * scale
 
 
 def so3_to_son3(x):
@@ -67,9 +75,10 @@ def test_son3_agrees_with_so3(model):
         so3, son3, omega, h = vj.models.HeavyTop(), vj.models.HeavyTop(group=SOn(3)), np.array([0.3, -0.2, 6.0]), 0.01
     a = vj.simulate(so3, so3.initial_state(omega0=omega), h, N, order=2)
     b = vj.simulate(son3, son3.initial_state(omega0=so3_to_son3(omega)), h, N, order=2)
-    np.testing.assert_allclose(b.g, a.g, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(b.xi, so3_to_son3(a.xi), rtol=0, atol=1e-11)
-    np.testing.assert_allclose(b.M, so3_to_son3(a.M), rtol=0, atol=1e-11)
+    rate, t = float(np.max(np.abs(a.xi))), N * h
+    for ours, theirs in ((b.g, a.g), (b.xi, so3_to_son3(a.xi)), (b.M, so3_to_son3(a.M))):
+        bound = separation(rate, t, float(np.max(np.abs(theirs))))  # measured ≤ 0.05 of it
+        np.testing.assert_allclose(ours, theirs, rtol=0, atol=bound)
     np.testing.assert_allclose(b.energy, a.energy, rtol=1e-12)
     kn_a, kn_b = np.asarray(a.kelvin_noether), np.asarray(b.kelvin_noether)
     if model == "rigid_body":  # the spatial momentum, mapped like the coordinates

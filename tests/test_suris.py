@@ -437,7 +437,11 @@ def test_vmap_grad_and_float32():
     M0s = jnp.stack([d.M, 0.5 * d.M, -d.M])
     Ms, _ = jax.vmap(lambda M0: suris.lagrange_top_body_frame(M0, d.P, d.A, 0.4, 0.1, 50))(M0s)
     M1, _ = suris.lagrange_top_body_frame(0.5 * d.M, d.P, d.A, 0.4, 0.1, 50)
-    assert Ms.shape == (3, 51, 4, 4) and float(jnp.max(jnp.abs(Ms[1] - M1))) <= 1e-14
+    assert Ms.shape == (3, 51, 4, 4)
+    # vmap may round differently: two roundings of 50 steps part like a random walk, ≲ 30√50·ε·|M|
+    # (a 6ε step at 5σ; measured 7.5e-15 = 2.4·√50·ε·|M|)
+    eps, scale = np.finfo(np.float64).eps, float(jnp.max(jnp.abs(M1)))
+    assert float(jnp.max(jnp.abs(Ms[1] - M1))) <= 30 * np.sqrt(50) * eps * scale
 
     def loss(eps):
         _, P = suris.clebsch_case(d.M, d.P, d.b, eps, 50)
