@@ -1,5 +1,5 @@
-"""Runs that are meaningless or needlessly slow are never silent: ``vj.simulate`` and the beam's
-time march warn when their own energy error says the result is meaningless (``vj.AccuracyWarning``;
+"""Runs that are meaningless or needlessly slow are never silent: ``vj.simulate``, ``vj.ensemble``
+(per member) and the beam's time march warn when their own energy error says the result is meaningless (``vj.AccuracyWarning``;
 the command line says so on stderr and exits 3), a sound run says nothing, and a single trajectory
 on an accelerator warns once (``vj.PerformanceWarning``)."""
 
@@ -30,6 +30,22 @@ def test_simulate_warns_on_a_meaningless_step_and_not_on_a_sound_one():
         warnings.simplefilter("error", vj.AccuracyWarning)
         sol = vj.simulate(model, model.initial_state(), 0.01, 500)
     assert energy_error(sol.energy) < 1e-3
+
+
+def test_ensemble_counts_the_meaningless_members_and_is_silent_on_sound_ones():
+    """A calm member and a fast-spinning one share h = 1 s (the splitting: explicit, so the fast
+    member's run finishes, just meaninglessly): one warning naming 1 of 2 members; the DEP
+    ensemble at h = 0.05 s says nothing."""
+    model = vj.models.UnderwaterVehicle()
+    members = vj.vary(model.initial_state(), xi=jnp.array([[0.1, 0.0, 0.05], [5.0, -4.0, 6.0]]))
+    with pytest.warns(vj.AccuracyWarning, match="1 of 2 members") as record:
+        sol = vj.ensemble(model, members, 1.0, 200, scheme="splitting")
+    assert len(record) == 1
+    errors = energy_error(sol.energy)
+    assert errors[0] < MEANINGLESS_ENERGY_ERROR < errors[1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", vj.AccuracyWarning)
+        vj.ensemble(model, members, 0.05, 200)
 
 
 def test_cli_flags_a_meaningless_run_and_passes_a_sound_one(tmp_path, capsys):

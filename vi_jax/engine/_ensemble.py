@@ -38,356 +38,17 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
 from .. import _validation as val
-from ._simulate import NewtonFailure, Solution, _default_rtol, _validate, simulate
-from ..solvers import MAX_ITERATIONS, NONFINITE, RESULT_MESSAGES, SINGULAR_DIFFERENCE_MAP, SUCCESS, CHORD_ITERATIONS
+from .._accuracy import warn_if_meaningless
+from .._precision import full_precision
+from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
+from ._simulate import SCHEMES, NewtonFailure, Solution, _default_rtol, _validate, simulate
+from ._solution import validate_inputs
+from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
-from ..lie import _series
 from ..models import UnderwaterVehicle
+from ._vehicle_kernel import CHUNK as CHUNK, vehicle_chunked
 
 METHODS = ("auto", "batched", "vmap")
-
-
-# --- component-array ("structure of arrays") algebra ------------------------------------
-# A vector is a tuple of component arrays (each of shape (members,) or a broadcastable scalar);
-# a matrix is a tuple of row tuples.
-
-
-def _dot(u, v):
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-
-def _cross(u, v):
-    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
-
-
-def _axpy(s, x, y):
-    """s·x + y."""
-    return tuple(s * a + b for a, b in zip(x, y))
-
-
-def _matvec(A, v):
-    return tuple(_dot(row, v) for row in A)
-
-
-def _tmatvec(A, v):
-    return tuple(A[0][j] * v[0] + A[1][j] * v[1] + A[2][j] * v[2] for j in range(3))
-
-
-def _matmul(A, B):
-    return tuple(tuple(A[i][0] * B[0][j] + A[i][1] * B[1][j] + A[i][2] * B[2][j] for j in range(3)) for i in range(3))
-
-
-def _inv3(A):
-    """Closed-form inverse (adjugate / determinant)."""
-    c = (_cross(A[1], A[2]), _cross(A[2], A[0]), _cross(A[0], A[1]))
-    inv_det = 1 / _dot(A[0], c[0])
-    return tuple(tuple(c[j][i] * inv_det for j in range(3)) for i in range(3))
-
-
-def _vmax(v):
-    out = v[0]
-    for x in v[1:]:
-        out = jnp.maximum(out, x)
-    return out
-
-
-def _lu(A):
-    """Unrolled LU factors of a small k×k matrix, without pivoting (as ``_solve.dense_solve``:
-    the Newton matrices are h-perturbations of a positive definite Hessian)."""
-    rows = [list(row) for row in A]
-    k = len(rows)
-    inv_diag, multipliers = [], []
-    for j in range(k):
-        inv_diag.append(1 / rows[j][j])
-        col = []
-        for i in range(j + 1, k):
-            f = rows[i][j] * inv_diag[j]
-            rows[i] = [rows[i][c] - f * rows[j][c] for c in range(k)]
-            col.append(f)
-        multipliers.append(col)
-    return rows, inv_diag, multipliers
-
-
-def _lu_solve(lu, b):
-    rows, inv_diag, multipliers = lu
-    k = len(b)
-    y = list(b)
-    for j in range(k):
-        for f, i in zip(multipliers[j], range(j + 1, k)):
-            y[i] = y[i] - f * y[j]
-    x = [None] * k
-    for i in reversed(range(k)):
-        acc = y[i]
-        for c in range(i + 1, k):
-            acc = acc - rows[i][c] * x[c]
-        x[i] = acc * inv_diag[i]
-    return tuple(x)
-
-
-def _columns(linear, like):
-    """Per-member Jacobian of a map with no coupling between members: column j is the map
-    applied to the tangent with component j = 1 for every member."""
-    k = len(like)
-    cols = [linear(tuple(jnp.ones_like(c) if i == j else jnp.zeros_like(c) for i, c in enumerate(like))) for j in range(k)]
-    return [[cols[j][i] for j in range(k)] for i in range(k)]
-
-
-def _where(mask, new, old):
-    return jax.tree.map(lambda a, b: jnp.where(mask, a, b), new, old)
-
-
-def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS):
-    """Solve ``fn(z) = 0`` for every member at once; ``z`` is a tuple of component arrays and
-    ``fn(z) -> (residual, scale)`` (same tuple structure; scale per member) must not couple
-    members. The iteration of ``vj.simulate``'s Newton (one Newton step, chord steps, a check,
-    masked fallback Newton steps while any member has not converged, a final correction).
-    Returns z and per-member (iterations, relative residual, result); implicit-function
-    gradients through ``jax.lax.custom_root``."""
-
-    def residual_only(z):
-        return fn(z)[0]
-
-    def norm(r):
-        return _vmax(tuple(jnp.abs(c) for c in r))
-
-    def not_converged(r, scale):
-        return norm(r) > rtol * scale
-
-    def finite(r):
-        out = jnp.isfinite(r[0])
-        for c in r[1:]:
-            out = out & jnp.isfinite(c)
-        return out
-
-    def value_and_lu(z):
-        r, scale = fn(z)
-        _, lin = jax.linearize(residual_only, z)
-        return r, scale, _lu(_columns(lin, z))
-
-    def solve(_, z):
-        r, scale, lu = value_and_lu(z)
-        n_chord = max(min(chord_iterations, max_iterations - 1), 0)
-        for _ in range(1 + n_chord):
-            z = _axpy(-1.0, _lu_solve(lu, r), z)
-            r, scale = fn(z)
-        i = jnp.full(jnp.shape(scale), 1 + n_chord, jnp.int32)
-
-        def active_of(i, r, scale):
-            return (i < max_iterations) & not_converged(r, scale) & finite(r)
-
-        def body(state):
-            i, z, r, scale, lu, active = state
-            z = _where(active, _axpy(-1.0, _lu_solve(lu, r), z), z)
-            new = value_and_lu(z)
-            r, scale, lu = _where(active, new, (r, scale, lu))
-            i = i + active
-            return i, z, r, scale, lu, active_of(i, r, scale)
-
-        state = (i, z, r, scale, lu, active_of(i, r, scale))
-        state = jax.lax.cond(
-            jnp.any(state[-1]),
-            lambda s: jax.lax.while_loop(lambda s: jnp.any(s[-1]), body, s),
-            lambda s: s,
-            state,
-        )
-        i, z, r, scale, lu, _ = state
-        z = _axpy(-1.0, _lu_solve(lu, r), z)
-        rel = norm(r) / jnp.where(scale > 0, scale, 1.0)
-        ok = finite(z) & finite(r)
-        result = jnp.where(~ok, NONFINITE, jnp.where(rel <= rtol, SUCCESS, MAX_ITERATIONS))
-        dtype = z[0].dtype  # custom_root's JVP rule mishandles integer auxiliary outputs
-        return z, (i.astype(dtype), rel, result.astype(dtype))
-
-    def tangent_solve(linear, y):
-        return _lu_solve(_lu(_columns(linear, y)), y)
-
-    z, (i, rel, result) = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
-    stats = (i.astype(jnp.int32), rel, result.astype(jnp.int8))
-    return z, jax.lax.stop_gradient(stats)
-
-
-# --- the underwater vehicle on component arrays -----------------------------------------
-
-
-def _dtau_dual(tau, h, w, mu):
-    """(dτ⁻¹_{hω})* μ on component arrays: μ + (h/2)ω×μ + (h²/4)(ω·μ)ω for Cayley (eq. 88),
-    μ + (h/2)ω×μ + h²α(h|ω|)ω×(ω×μ) for exp (eq. 97)."""
-    wxmu = _cross(w, mu)
-    if tau == "cayley":
-        last = tuple(0.25 * h**2 * _dot(w, mu) * c for c in w)
-    else:
-        alpha = _series.dexp_inv_alpha(h**2 * _dot(w, w))
-        last = tuple(h**2 * alpha * c for c in _cross(w, wxmu))
-    return tuple(m + 0.5 * h * a + b for m, a, b in zip(mu, wxmu, last))
-
-
-def _group_map(tau, x):
-    """τ(x̂): cay(x) = I + 4/(4+|x|²)(x̂ + x̂²/2) or Rodrigues' exp, with x̂² = xxᵀ − |x|²I."""
-    t2 = _dot(x, x)
-    if tau == "cayley":
-        a = 4 / (4 + t2)
-        b = 0.5 * a
-    else:
-        a, b = _series.sinc(t2), _series.one_minus_cos_over_t2(t2)
-    X = ((0.0, -x[2], x[1]), (x[2], 0.0, -x[0]), (-x[1], x[0], 0.0))
-    return tuple(
-        tuple((i == j) + a * X[i][j] + b * (x[i] * x[j] - (i == j) * t2) for j in range(3)) for i in range(3)
-    )
-
-
-def _vehicle_parameters(system, dtype):
-    """Parameters as components: scalars, or arrays over the members."""
-    c = lambda x: jnp.asarray(x, dtype)  # noqa: E731
-    m = c(system.mass)
-    A = c(system.added_mass)
-    J = c(system.inertia)
-    # ℓ depends on the symmetric parts only: so do the steps and their gradients.
-    sym = lambda X, i, j: 0.5 * (X[..., i, j] + X[..., j, i])  # noqa: E731
-    mass = tuple(tuple(m * (i == j) + sym(A, i, j) for j in range(3)) for i in range(3))
-    inertia = tuple(tuple(sym(J, i, j) for j in range(3)) for i in range(3))
-    B = c(system.buoyancy)
-    r = c(system.buoyancy_offset)
-    return dict(
-        mass=mass, mass_inv=_inv3(mass), inertia=inertia, inertia_inv=_inv3(inertia),
-        weight=m * c(system.gravity), buoyancy=B, offset=tuple(r[..., i] for i in range(3)),
-    )
-
-
-def _vehicle_step(p, tau, h, rtol, max_iterations, state):
-    """One step of eqs. (73)–(74): ν_k explicit, ω_k by Newton, for every member at once."""
-    R, q, M, P, w = state
-    a = R[2]  # Rᵀe_z
-    Mnu = _axpy(h * (p["weight"] - p["buoyancy"]), a, P)  # eq. (74)
-    nu = _matvec(p["mass_inv"], Mnu)
-    torque = tuple(-h * p["buoyancy"] * c for c in _cross(p["offset"], a))
-    munk = tuple(h * c for c in _cross(Mnu, nu))
-    rhs = tuple(m + t + k for m, t, k in zip(M, torque, munk))  # eq. (73)
-    size = tuple(jnp.abs(t) + jnp.abs(k) for t, k in zip(torque, munk))
-
-    def residual(w):
-        f = _dtau_dual(tau, h, w, _matvec(p["inertia"], w))
-        return tuple(a - b for a, b in zip(f, rhs)), _vmax(tuple(jnp.abs(c) + s for c, s in zip(f, size)))
-
-    w, (iterations, rel, result) = newton_members(residual, w, rtol=rtol, max_iterations=max_iterations)
-    if tau == "exp":
-        result = jnp.where(h**2 * _dot(w, w) < jnp.pi**2, result, jnp.int8(SINGULAR_DIFFERENCE_MAP))
-    lam = _group_map(tau, tuple(h * c for c in w))
-    new = (
-        _matmul(R, lam),
-        _axpy(h, _matvec(R, nu), q),
-        _dtau_dual(tau, -h, w, _matvec(p["inertia"], w)),
-        _tmatvec(lam, Mnu),
-        w,
-    )
-    return new, (iterations, rel, result)
-
-
-def _vehicle_diagnostics(p, R, q, M, P):
-    """Node velocities (continuous inverse Legendre map), energy and Kelvin–Noether quantity,
-    as ``vj.simulate`` computes them, on component arrays."""
-    omega = _matvec(p["inertia_inv"], M)
-    nu = _matvec(p["mass_inv"], P)
-    n = _tmatvec(R, q)
-    a = R[2]
-    energy = 0.5 * (_dot(omega, M) + _dot(nu, P)) - (p["weight"] - p["buoyancy"]) * _dot(n, a)
-    energy = energy + p["buoyancy"] * _dot(p["offset"], a)
-    kn = _dot(a, _axpy(-1.0, _cross(P, n), M))  # e_zᵀR(M − P◇n), P◇n = P×n
-    kn_scale = jnp.sqrt(_dot(M, M)) + jnp.sqrt(_dot(P, P)) * jnp.sqrt(_dot(n, n))
-    return omega, nu, energy, kn, kn_scale
-
-
-def _stack(v):
-    """Component tuple → array with the components last (a matrix's rows, then columns)."""
-    if isinstance(v[0], tuple):
-        return jnp.stack([jnp.stack(row, axis=-1) for row in v], axis=-2)
-    return jnp.stack(v, axis=-1)
-
-
-def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members):
-    """Solution of every member (leading axis = member) from the batch-minor kernel."""
-    dtype = jnp.asarray(h).dtype
-    p = _vehicle_parameters(system, dtype)
-    full = lambda x: jnp.broadcast_to(jnp.asarray(x, dtype), (n_members,))  # noqa: E731
-    R0 = tuple(tuple(full(x0.g[..., i, j]) for j in range(3)) for i in range(3))
-    omega0 = tuple(full(x0.xi[..., i]) for i in range(3))
-    q0 = tuple(full(x0.q[..., i]) for i in range(3))
-    v0 = tuple(full(x0.qdot[..., i]) for i in range(3))
-    state0 = (R0, q0, _matvec(p["inertia"], omega0), _matvec(p["mass"], _tmatvec(R0, v0)), omega0)
-
-    def step(state, _):
-        return _vehicle_step(p, tau, h, rtol, max_iterations, state)
-
-    def worst_step(carry, _):  # the worst statistics since the last saved node, carried
-        state, worst = carry
-        state, stats = step(state, None)
-        return (state, jax.tree.map(jnp.maximum, worst, stats)), None
-
-    def node(state, _):
-        if save_every == 1:
-            state, stats = step(state, None)
-        else:
-            none = (jnp.zeros((n_members,), jnp.int32), jnp.zeros((n_members,), dtype), jnp.zeros((n_members,), jnp.int8))
-            (state, stats), _ = jax.lax.scan(worst_step, (state, none), None, length=save_every)
-        # One packed row per node: a write per saved array costs more than the arithmetic.
-        return state, (jnp.stack(jax.tree.leaves(state[:4])), jnp.stack([x.astype(dtype) for x in stats]))
-
-    _, (saved, stats) = jax.lax.scan(node, state0, None, length=n_saved)
-    saved = jnp.concatenate([jnp.stack(jax.tree.leaves(state0[:4]))[None], saved])
-    R, q, M, P = jax.tree.unflatten(jax.tree.structure(state0[:4]), list(jnp.moveaxis(saved, 1, 0)))
-    omega, nu, energy, kn, kn_scale = _vehicle_diagnostics(p, R, q, M, P)
-    iterations, rel, result = (
-        jnp.concatenate([jnp.full((1, n_members), v, t), x.astype(t)])
-        for v, x, t in zip((0, 0, SUCCESS), jnp.moveaxis(stats, 1, 0), (jnp.int32, dtype, jnp.int8))
-    )
-    members_first = lambda x: jnp.moveaxis(x, 1, 0)  # noqa: E731  (nodes, members, …) → (members, nodes, …)
-    return Solution(
-        t=jnp.broadcast_to(h * save_every * jnp.arange(n_saved + 1, dtype=dtype), (n_members, n_saved + 1)),
-        g=members_first(_stack(R)),
-        xi=members_first(_stack(omega)),
-        q=members_first(_stack(q)),
-        nu=members_first(_stack(nu)),
-        M=members_first(_stack(M)),
-        P=members_first(_stack(P)),
-        energy=members_first(energy),
-        kelvin_noether=members_first(kn),
-        kelvin_noether_scale=members_first(kn_scale),
-        newton_iterations=members_first(iterations),
-        newton_residual=members_first(rel),
-        result=members_first(result),
-    )
-
-
-CHUNK = 64  # members per inner loop of the batched kernel (benchmarks/ensemble.py)
-
-
-def _vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau, rtol, max_iterations):
-    """The batched kernel over chunks of ``CHUNK`` members, one chunk after the other: the
-    working set of a chunk stays in cache, and XLA:CPU runs a small loop as one kernel
-    rather than one dispatch per fused operation (several times faster per member)."""
-    if n_members <= CHUNK:
-        system, x0 = eqx.combine(dynamic, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members)
-    n_chunks = -(-n_members // CHUNK)
-    padded = n_chunks * CHUNK
-    is_none = lambda x: x is None  # noqa: E731
-
-    def split(ax, x):
-        if ax is None or x is None:
-            return x
-        x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - n_members, axis=0)]) if padded > n_members else x
-        return x.reshape((n_chunks, CHUNK) + x.shape[1:])
-
-    batched = jax.tree.map(split, axes, dynamic, is_leaf=is_none)
-    shared = jax.tree.map(lambda ax, x: x if ax is None else None, axes, dynamic, is_leaf=is_none)
-    chunked = jax.tree.map(lambda ax, x: None if ax is None else x, axes, batched, is_leaf=is_none)
-
-    def one(chunk):
-        merged = jax.tree.map(lambda a, b: a if b is None else b, shared, chunk, is_leaf=is_none)
-        system, x0 = eqx.combine(merged, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, CHUNK)
-
-    out = jax.lax.map(one, chunked)
-    return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:n_members], out)
 
 
 # --- the public API ----------------------------------------------------------------------
@@ -472,8 +133,9 @@ def ensemble(
     x0_axes=0,
     method: str = "auto",
     mesh=None,
-    tau="cayley",
-    order: int = 1,
+    scheme: str = "dep",
+    tau=None,
+    order: int | None = None,
     save_every: int = 1,
     throw: bool = True,
     rtol=None,
@@ -487,9 +149,18 @@ def ensemble(
     batched arguments. ``method``: "batched" (the fast vehicle kernel, order 1), "vmap"
     (generic) or "auto" (batched when it applies). ``mesh``: a ``jax.sharding.Mesh``; members
     are split over all its devices (padded to a multiple of their number). The other keywords
-    are ``vj.simulate``'s; ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the
-    failed members.
+    are ``vj.simulate``'s (``scheme="splitting"``: ``jax.vmap`` of the explicit splitting);
+    ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. Members
+    whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
+    that counts them.
     """
+    val.check_choice("scheme", scheme, SCHEMES)
+    if scheme == "splitting":
+        if tau is not None:
+            raise ValueError(f"tau: applies to scheme='dep' only (the splitting has no difference map), got {tau!r}")
+        if method == "batched":
+            raise ValueError("method: 'batched' is the DEP scheme's vehicle kernel; the splitting runs as 'vmap' or 'auto'")
+        order = val.check_choice("order", 2 if order is None else order, SPLITTING_ORDERS)
     val.check_choice("method", method, METHODS)
     sys_axes = _leaf_axes("system_axes", system, system_axes)
     state_axes = _leaf_axes("x0_axes", x0, x0_axes)
@@ -508,9 +179,14 @@ def ensemble(
     (n_members,) = sizes
     if n_members < 1:
         raise ValueError("x0_axes, system_axes: expected at least one member, got 0")
-    h, n_steps, save_every, tau_map = _validate(
-        _take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, tau, order, save_every
-    )
+    if scheme == "splitting":
+        h, n_steps, save_every = validate_inputs(_take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, save_every)
+        tau_map = None
+    else:
+        order = 1 if order is None else order
+        h, n_steps, save_every, tau_map = _validate(
+            _take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, tau or "cayley", order, save_every
+        )
     val.check_finite("system parameters", val.numeric_leaves(system))
     val.check_finite("x0", x0)
     if val.is_concrete(x0.g):
@@ -519,12 +195,14 @@ def ensemble(
             err = jnp.max(jax.vmap(G.membership_error)(jnp.reshape(x0.g, (-1,) + jnp.shape(x0.g)[-2:])))
         if not float(err) <= 1e-6:
             raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
-    if method == "batched" and not _batched_supported(system, tau_map, order, checkpoint):
+    if method == "batched" and scheme == "dep" and not _batched_supported(system, tau_map, order, checkpoint):
         raise ValueError(
             "method: 'batched' needs an UnderwaterVehicle, order=1, tau 'cayley' or 'exp' and checkpoint=False; "
             f"got {type(system).__name__}, order={order}, tau={tau_map.name!r}, checkpoint={checkpoint}; use 'vmap'"
         )
-    batched = method == "batched" or (method == "auto" and _batched_supported(system, tau_map, order, checkpoint))
+    batched = scheme == "dep" and (
+        method == "batched" or (method == "auto" and _batched_supported(system, tau_map, order, checkpoint))
+    )
     if mesh is not None and not isinstance(mesh, jax.sharding.Mesh):
         raise ValueError(f"mesh: expected a jax.sharding.Mesh, got {type(mesh).__name__}")
 
@@ -536,27 +214,30 @@ def ensemble(
         n_saved=n_steps // save_every, save_every=save_every, tau=tau_map, order=order,
         rtol=_default_rtol(dtype) if rtol is None else float(rtol),
         max_iterations=val.check_int("max_newton_iterations", max_newton_iterations, 1),
-        checkpoint=bool(checkpoint), batched=batched,
+        checkpoint=bool(checkpoint), batched=batched, scheme=scheme,
     )
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
-    if mesh is None:
-        sol = _run(dynamic, static, axes, h, n_members=n_members, **options)
-    else:
-        sol = _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
-    return _check_members(sol) if throw else sol
+    with full_precision():
+        if mesh is None:
+            sol = _run(dynamic, static, axes, h, n_members=n_members, **options)
+        else:
+            sol = _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
+    sol = _check_members(sol) if throw else sol
+    warn_if_meaningless(sol.energy, "ensemble", members=True)
+    return sol
 
 
 @eqx.filter_jit
-def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched):
+def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme):
     system, x0 = eqx.combine(dynamic, static)
     if batched:
-        return _vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau.name, rtol, max_iterations)
+        return vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau.name, rtol, max_iterations)
 
     def one(system, x0):
         return simulate(
-            system, x0, h, n_saved * save_every, tau=tau, order=order, save_every=save_every, throw=False,
-            rtol=rtol, max_newton_iterations=max_iterations, checkpoint=checkpoint,
+            system, x0, h, n_saved * save_every, scheme=scheme, tau=tau, order=order, save_every=save_every,
+            throw=False, rtol=rtol, max_newton_iterations=max_iterations, checkpoint=checkpoint,
         )
 
     return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)

@@ -17,49 +17,12 @@ from .._accuracy import AccuracyWarning, warn_if_meaningless
 from ._advance import advance_loop, advance_scan
 from ._placement import placement
 from .._precision import full_precision
+from ._simulate_splitting import simulate_splitting
+from ._solution import Solution, validate_inputs
 
 
 class NewtonFailure(RuntimeError):
     """A DEP step whose implicit equations were not solved (``throw=True``)."""
-
-
-class Solution(eqx.Module):
-    """Trajectory at the saved nodes (leading axis = time, n_saved + 1 rows).
-
-    ``g``/``R``: configuration; ``xi``/``omega``: body velocity and ``nu``: body velocity of the
-    additional dynamics, both from the continuous inverse Legendre map at the nodes; ``M``, ``P``:
-    discrete body momenta; ``energy``; ``kelvin_noether`` (a scalar per node when the isotropy
-    algebra is one-dimensional, else one column per basis element) and ``kelvin_noether_scale``
-    (|M| + |P||n|, the size of the terms that cancel in it). Newton statistics per saved node
-    (the worst over the steps since the previous saved node; row 0 is the initial data):
-    ``newton_iterations``, ``newton_residual`` (relative), ``result`` (0 = success).
-    """
-
-    t: jax.Array
-    g: jax.Array
-    xi: jax.Array
-    q: jax.Array | None
-    nu: jax.Array | None
-    M: jax.Array
-    P: jax.Array | None
-    energy: jax.Array
-    kelvin_noether: jax.Array
-    kelvin_noether_scale: jax.Array
-    newton_iterations: jax.Array
-    newton_residual: jax.Array
-    result: jax.Array
-
-    @property
-    def R(self):
-        return self.g
-
-    @property
-    def omega(self):
-        return self.xi
-
-    @property
-    def succeeded(self):
-        return jnp.all(self.result == SUCCESS)
 
 
 def _default_rtol(dtype):
@@ -67,30 +30,7 @@ def _default_rtol(dtype):
 
 
 def _validate(system, x0, h, n_steps, tau, order, save_every):
-    if not isinstance(system, AbstractSystem):
-        raise ValueError(f"system: expected a vi_jax system (AbstractSystem), got {type(system).__name__}")
-    if not isinstance(x0, State):
-        raise ValueError(f"x0: expected a vi_jax.State (e.g. model.initial_state()), got {type(x0).__name__}")
-    G = system.group
-    d, r = G.matrix_size, G.dim
-    g0 = val.as_array("x0.g", x0.g, (d, d))
-    xi0 = val.as_array("x0.xi", x0.xi, (r,))
-    val.check_finite("x0.g", g0)
-    val.check_finite("x0.xi", xi0)
-    val.check_on_group("x0.g", G, g0)
-    if system.has_additional:
-        if x0.q is None or x0.qdot is None:
-            raise ValueError("x0: this system has additional dynamics; expected x0.q and x0.qdot, got None")
-        m = jnp.shape(x0.q)[-1] if jnp.ndim(x0.q) else None
-        val.as_array("x0.q", x0.q, (m,))
-        val.as_array("x0.qdot", x0.qdot, (m,))
-        val.check_finite("x0.q", x0.q)
-        val.check_finite("x0.qdot", x0.qdot)
-    elif x0.q is not None or x0.qdot is not None:
-        raise ValueError("x0: this system has no additional dynamics; expected x0.q = x0.qdot = None")
-    val.check_finite("system parameters", val.numeric_leaves(system))
-    h = val.check_positive_scalar("h", h)
-    n_steps, save_every = val.check_steps(n_steps, save_every)
+    h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every)
     val.check_choice("order", order, ORDERS)
     return h, n_steps, save_every, difference_map(tau)
 
@@ -110,14 +50,18 @@ def _node_diagnostics(system, states, rtol, max_iter):
     return xi, nu, energy, kn, kn_scale
 
 
+SCHEMES = ("dep", "splitting")
+
+
 def simulate(
     system,
     x0: State,
     h,
     n_steps: int,
     *,
-    tau="cayley",
-    order: int = 1,
+    scheme: str = "dep",
+    tau=None,
+    order: int | None = None,
     save_every: int = 1,
     throw: bool = True,
     rtol=None,
@@ -126,11 +70,20 @@ def simulate(
     checkpoint: bool = True,
     device=None,
 ) -> Solution:
-    """Integrate ``system`` from continuous initial data ``x0`` with the DEP scheme.
+    """Integrate ``system`` from continuous initial data ``x0``.
 
-    ``tau``: "cayley" or "exp"; ``order``: 1 (the left-point rule: seed 000's eq. 71 for the
-    vehicle), 2 (trapezoid, symmetric), 4 or 6 (symmetric compositions of order 2).
-    The recursion starts from the continuous Legendre map (seed 000 spec §2). ``throw=True``
+    ``scheme="dep"`` (default): the implicit DEP scheme. ``tau``: "cayley" (default) or "exp";
+    ``order``: 1 (default; the left-point rule: seed 000's eq. 71 for the vehicle), 2
+    (trapezoid, symmetric), 4 or 6 (symmetric compositions of order 2). The recursion starts
+    from the continuous Legendre map (seed 000 spec §2).
+
+    ``scheme="splitting"``: the explicit splitting of a separable ℓ = ½ξᵀJξ + ½νᵀMν − V(n, a)
+    (SO(3) scenes, SO(n) with a kinetic energy diagonal in the standard basis; a scene that is
+    not gets a ``ValueError`` naming the failing term), ``order`` 2 (default; Strang), 4, 6 or 8
+    (:data:`vi_jax.discrete._splitting.DEFAULTS`). No Newton solve: ``rtol``,
+    ``max_newton_iterations`` and ``throw`` do not apply, gradients are plain reverse mode.
+    A concrete call compiles once per ``n_steps // save_every``.
+ ``throw=True``
     raises :class:`NewtonFailure` (or an equinox runtime error under ``jit``) when a step fails;
     ``throw=False`` records it in ``Solution.result``. ``progress=True`` shows a progress bar
     (outside ``jit`` only). Jittable, vmappable and differentiable (implicit-function gradients).
@@ -146,16 +99,33 @@ def simulate(
     one-time :class:`PerformanceWarning`: single trajectories are latency-bound there), "cpu" or
     a ``jax.Device``.
     """
-    h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau, order, save_every)
-    rule, gammas = composition_coefficients(order)
+    val.check_choice("scheme", scheme, SCHEMES)
+    if scheme == "splitting":
+        if tau is not None:
+            raise ValueError(f"tau: applies to scheme='dep' only (the splitting has no difference map), got {tau!r}")
+        h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every)
+        order = 2 if order is None else order
+    else:
+        h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau or "cayley", 1 if order is None else order, save_every)
+        rule, gammas = composition_coefficients(1 if order is None else order)
     dtype = jnp.result_type(x0.g, x0.xi, h)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
     h = jnp.asarray(h, dtype)
-    rtol = _default_rtol(dtype) if rtol is None else float(rtol)
     cast = lambda x: None if x is None else jnp.asarray(x, dtype)  # noqa: E731
     x0 = State(cast(x0.g), cast(x0.xi), cast(x0.q), cast(x0.qdot))
     n_saved = n_steps // save_every
+    if scheme == "splitting":
+        options = dict(order=order, method=None, arrangement=None, checkpoint=checkpoint, dtype=dtype)
+        with full_precision():
+            if not val.is_concrete((system, x0, h)):
+                sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=False, **options)
+            else:
+                with placement(device):
+                    sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=progress, **options)
+        warn_if_meaningless(sol.energy, "simulate")
+        return sol
+    rtol = _default_rtol(dtype) if rtol is None else float(rtol)
     options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
     with full_precision():
         if not val.is_concrete((system, x0, h)):

@@ -1,0 +1,565 @@
+"""Explicit splitting of separable scenes (vi_jax/discrete/_splitting*.py, issue 12).
+
+The pieces' flows generate the continuous EP vector field; every composition has its order (on
+linear flows, where the order conditions are those of the free Lie algebra); the default orders
+converge at slopes 2/4/6/8 to an independent hand-written reference; Kelvin–Noether, the
+vehicle's horizontal linear momentum and R ∈ SO(3) hold to round-off over 10⁵ steps with the
+energy bounded and trend-free; one step equals an independent hand-written Strang step for the
+heavy top; non-separable scenes are rejected; vmap, reverse-mode gradients and float32 work.
+"""
+
+import functools
+import json
+import math
+import os
+import subprocess
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+from scipy.integrate import solve_ivp
+
+import vi_jax as vj
+from vi_jax import continuous
+from vi_jax._diagnostics import kelvin_noether, kelvin_noether_scale
+from vi_jax.discrete import _splitting as S
+from vi_jax.discrete._splitting_pieces import from_phase, piece_flows, principal_axes, separable_parts, to_phase
+from vi_jax.lie import SE3, SO3, LinearAction, SOn
+
+EPS = float(np.finfo(np.float64).eps)
+VEHICLE = vj.models.UnderwaterVehicle()
+TOP = vj.models.HeavyTop()
+FULL_INERTIA = np.array([[2.0, 0.3, -0.1], [0.3, 1.5, 0.2], [-0.1, 0.2, 1.0]])
+
+
+def hat(x):
+    return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
+
+
+# --- the pieces generate the continuous vector field -------------------------------------------
+GENERATOR_SCENES = {
+    "vehicle": lambda: VEHICLE,
+    "heavy top, full inertia, CoM off axis": lambda: vj.models.HeavyTop(inertia=FULL_INERTIA, center_of_mass=(0.1, -0.2, 0.5)),
+    "heavy top on SO(4)": lambda: vj.models.HeavyTop(group=SOn(4)),
+}
+
+
+@pytest.mark.parametrize("name", list(GENERATOR_SCENES))
+def test_pieces_generate_the_continuous_vector_field(name):
+    """Σ_pieces d/dt|₀ flow(t, x) = the continuous EP field (vi_jax.continuous) in momentum form:
+    ġ, q̇ and Π̇ = Jξ̇, Ṗ = Mν̇ (J, M the Hessians of ℓ), at a random state. Signs and factors of
+    every piece are checked here; the composition then has the order of its coefficients."""
+    system = GENERATOR_SCENES[name]()
+    G = system.group
+    rng = np.random.default_rng(1)
+    g, xi = G.exp(jnp.asarray(rng.normal(size=G.dim))), jnp.asarray(rng.normal(size=G.dim))
+    q = qdot = None
+    if system.has_additional:
+        q, qdot = jnp.asarray(rng.normal(size=3)), jnp.asarray(rng.normal(size=3))
+    x = vj.State(g, xi, q, qdot)
+
+    @jax.jit  # one compilation instead of op-by-op dispatch
+    def both_sides(parts, system, x):
+        state = S.splitting_initial_state(system, x)
+        phase = to_phase(parts, state.g, state.q, state.M, state.P)
+        rates = [jax.jvp(lambda t, f=f: from_phase(parts, f(t, phase)), (0.0,), (1.0,))[1] for f in piece_flows(parts).values()]
+        total = functools.reduce(lambda a, b: jax.tree.map(jnp.add, a, b), rates)
+        y = continuous.initial_state(system, x)
+        g_dot, xi_dot, q_dot, nu_dot = continuous.time_derivative(system, y)
+        n, a = system.body_configuration(x.g, x.q), system.body_advected(x.g)
+        expected = [g_dot, q_dot, jax.hessian(system.lagrangian)(x.xi, n, y[3], a) @ xi_dot, None]
+        if system.has_additional:
+            expected[3] = jax.hessian(system.lagrangian, argnums=2)(x.xi, n, y[3], a) @ nu_dot
+        return total, expected
+
+    total, expected = both_sides(separable_parts(system), system, x)
+    for got, want in zip(total, expected):
+        if want is None:
+            assert got is None
+            continue
+        scale = float(jnp.max(jnp.abs(want))) + 1.0
+        # Both sides are a few dozen products of O(1) numbers (plus the field's 6×6 solve).
+        assert float(jnp.max(jnp.abs(got - want))) <= 1e-12 * scale, (got, want)
+
+
+def test_principal_frame():
+    """J = U diag(I) Uᵀ with U ∈ SO(3); a diagonal J keeps the body frame (U = I exactly)."""
+    parts = separable_parts(vj.models.HeavyTop(inertia=FULL_INERTIA))
+    U, moments = np.asarray(parts.frame), 1 / np.asarray(parts.inv_inertia)
+    np.testing.assert_allclose(U.T @ U, np.eye(3), atol=1e-15)
+    assert abs(np.linalg.det(U) - 1) <= 1e-15
+    np.testing.assert_allclose(U @ np.diag(moments) @ U.T, FULL_INERTIA, atol=1e-14)
+    for system in (VEHICLE, TOP):  # TOP: degenerate moments (1, 1, 0.4)
+        parts = separable_parts(system)
+        assert np.array_equal(np.asarray(parts.frame), np.eye(3))
+        np.testing.assert_allclose(1 / np.asarray(parts.inv_inertia), np.diagonal(system.inertia), rtol=1e-15)
+    np.testing.assert_allclose(
+        np.asarray(separable_parts(VEHICLE).inv_mass), np.linalg.inv(VEHICLE.mass * np.eye(3) + VEHICLE.added_mass), rtol=1e-14
+    )
+
+
+# --- every composition has its order ------------------------------------------------------------
+_RNG = np.random.default_rng(0)
+_MATS = [_RNG.normal(size=(5, 5)) / 2 for _ in range(3)]
+_Y0 = _RNG.normal(size=5).astype(complex)
+_EIG = [(w, V, np.linalg.inv(V)) for w, V in map(np.linalg.eig, _MATS)]  # exp(tA) = V e^{tw} V⁻¹
+
+
+def _flow(k, t, y, xp=np):
+    w, V, Vi = _EIG[k]
+    return V @ (xp.exp(t * w) * (Vi @ y))
+
+
+def _composition(method, h, n_steps=2):
+    """Φ*_{α_s h}∘Φ_{β_s h}∘…∘Φ_{β₁h}, n_steps times, as written in the module's docstring, on
+    ẏ = (A₀ + A₁ + A₂)y with the exact flows exp(tA_k) (Φ_t applies A₀, A₁, A₂; Φ*_t the reverse)."""
+    y = _Y0
+    for _ in range(n_steps):
+        for i, c in enumerate(S.METHODS[method][1]):
+            for k in (0, 1, 2) if i % 2 == 0 else (2, 1, 0):
+                y = _flow(k, c * h, y)
+    return y
+
+
+@pytest.mark.parametrize("method", list(S.METHODS))
+def test_every_method_has_its_order(method):
+    """Local error ~ h^(p+1) on random 5×5 matrices (generic matrices represent the free Lie
+    algebra, so their order conditions are those of any splitting)."""
+    order = S.METHODS[method][0]
+    # h|A| in the range where the error is dominated by its leading h^(p+1) term, above round-off.
+    hs = {2: (0.05, 0.025, 0.0125), 4: (0.05, 0.025, 0.0125), 6: (0.2, 0.1, 0.05), 8: (0.4, 0.2, 0.1)}[order]
+    errors = [float(np.max(np.abs(_composition(method, h) - scipy.linalg.expm(2 * h * sum(_MATS)) @ _Y0))) for h in hs]
+    slope = np.polyfit(np.log(hs), np.log(errors), 1)[0]
+    assert min(errors) >= 1e-13, errors  # far above round-off (~1e-15)
+    # The next error term still adds up to +0.5 to the fitted slope at the larger h (measured
+    # 3.1–3.2, 5.1–5.2, 7.2–7.5, 9.4–9.6); a method of lower order could not exceed p + 0.75.
+    assert order + 0.75 <= slope <= order + 1.6, (errors, slope)
+
+
+def test_stage_loop_is_the_composition():
+    """The module's rolled stage loop (adjacent flows merged, the last flow of a step merged with
+    the first of the next) = the plain composition, for a method with α_i ≠ β_i."""
+    method = "blanes_moan10"
+    flows = {k: functools.partial(_flow, k, xp=jnp) for k in range(3)}
+    table = S.stage_table(method)
+    h = jnp.asarray(0.1)
+    y = S._steps(flows, (0, 1, 2), table, h, S._first(flows, (0, 1, 2), table[0, 0], h, _Y0), 2)
+    assert float(np.max(np.abs(np.asarray(y) - _composition(method, 0.1)))) <= 1e-13
+
+
+# --- convergence against an independent hand-written reference ---------------------------------
+def vehicle_field(m):
+    """Hand-written EP equations of the vehicle (seed 000 eq. 62): with Π = Jω, P = Mν, a = Rᵀe_z,
+    Π̇ = Π×ω + P×ν − B r×a,  Ṗ = P×ω + (W − B)a,  Ṙ = Rω̂,  q̇ = Rν."""
+    Ji = np.linalg.inv(np.asarray(m.inertia))
+    Mi = np.linalg.inv(float(m.mass) * np.eye(3) + np.asarray(m.added_mass))
+    W, B, r = float(m.mass * m.gravity), float(m.buoyancy), np.asarray(m.buoyancy_offset)
+
+    def f(t, y):
+        R, Pi, P = y[:9].reshape(3, 3), y[12:15], y[15:]
+        w, nu, a = Ji @ Pi, Mi @ P, R[2]
+        Pi_dot = np.cross(Pi, w) + np.cross(P, nu) - B * np.cross(r, a)
+        return np.concatenate([(R @ hat(w)).ravel(), R @ nu, Pi_dot, np.cross(P, w) + (W - B) * a])
+
+    return f
+
+
+def top_field(m):
+    """Hand-written heavy top: Π̇ = Π×ω + mg Γ×χ (Γ = Rᵀe_z, gravity along −e_z), Ṙ = Rω̂."""
+    Ji, mgchi = np.linalg.inv(np.asarray(m.inertia)), float(m.mass * m.gravity) * np.asarray(m.center_of_mass)
+
+    def f(t, y):
+        R, Pi = y[:9].reshape(3, 3), y[9:]
+        w = Ji @ Pi
+        return np.concatenate([(R @ hat(w)).ravel(), np.cross(Pi, w) + np.cross(R[2], mgchi)])
+
+    return f
+
+
+def hand_reference(system, T):
+    """(R(T), q(T)) by scipy's DOP853 at rtol = atol = 1e-13 on the hand-written field (agrees
+    with vi_jax.continuous.solve/Dopri8 at 1e-14 to ~1e-13)."""
+    x0 = system.initial_state()
+    R0 = np.asarray(x0.g)
+    Pi0 = np.asarray(system.inertia) @ np.asarray(x0.xi)
+    if system.has_additional:
+        M = float(system.mass) * np.eye(3) + np.asarray(system.added_mass)
+        y0, f = np.concatenate([R0.ravel(), np.asarray(x0.q), Pi0, M @ R0.T @ np.asarray(x0.qdot)]), vehicle_field(system)
+    else:
+        y0, f = np.concatenate([R0.ravel(), Pi0]), top_field(system)
+    y = solve_ivp(f, (0.0, T), y0, method="DOP853", rtol=1e-13, atol=1e-13).y[:, -1]
+    return y[:9].reshape(3, 3), (y[9:12] if system.has_additional else None)
+
+
+@functools.cache
+def _runner(pieces):
+    """n steps of a (zero-padded) stage table, n and the table traced, so that the orders share
+    one compilation per order of the pieces. The module's own first flow, stage loop and flows."""
+
+    @jax.jit
+    def run(parts, x0, h, n, table, beta1):
+        system = parts.system
+        flows = piece_flows(parts)
+        state = S.splitting_initial_state(system, x0)
+        s = S._first(flows, pieces, beta1, h, to_phase(parts, state.g, state.q, state.M, state.P))
+        return from_phase(parts, S._steps(flows, pieces, table, h, s, n))
+
+    return run
+
+
+def run_steps(system, x0, h, n, order):
+    """n steps of the default method of ``order`` (in its default arrangement)."""
+    method, arrangement = S.resolve(order)
+    table = S.stage_table(method)
+    longest = max(len(S.stage_table(S.resolve(o)[0])) for o in S.ORDERS)
+    padded = np.vstack([np.zeros((longest - len(table), 3)), table])
+    pieces = S.arrange(("V", "T", 0, 1, 2) if system.has_additional else ("V", 0, 1, 2), arrangement)
+    return _runner(pieces)(separable_parts(system), x0, jnp.asarray(h), n, jnp.asarray(padded), jnp.asarray(table[0, 0]))
+
+
+CONVERGENCE = {
+    # scene, T, step counts per order (errors between ~1e-2 and ~1e-10, above the reference's 1e-13)
+    "vehicle": (VEHICLE, 20.0, {2: (80, 160, 320), 4: (20, 40, 80), 6: (20, 40, 80), 8: (20, 40, 80)}),
+    "heavy top": (TOP, 1.0, {2: (50, 100, 200), 4: (25, 50, 100), 6: (15, 30, 60), 8: (8, 16, 32)}),
+}
+
+
+@functools.cache
+def _reference(name):
+    system, T, _ = CONVERGENCE[name]
+    return hand_reference(system, T)
+
+
+@pytest.mark.parametrize("order", S.ORDERS)
+@pytest.mark.parametrize("name", list(CONVERGENCE))
+def test_convergence_order(name, order):
+    system, T, counts = CONVERGENCE[name]
+    R_ref, q_ref = _reference(name)
+    errors = []
+    for n in counts[order]:
+        g, q, _, _ = run_steps(system, system.initial_state(), T / n, n, order)
+        err = float(np.max(np.abs(np.asarray(g) - R_ref)))
+        if q_ref is not None:
+            err = max(err, float(np.max(np.abs(np.asarray(q) - q_ref))))
+        errors.append(err)
+    slope = np.polyfit(np.log(np.asarray(counts[order], float)), np.log(errors), 1)[0]
+    assert abs(-slope - order) <= 0.2, (errors, slope)
+
+
+# --- the driver -----------------------------------------------------------------------------------
+def _vehicle_run(x0, model=VEHICLE):
+    return S.splitting_run(model, x0, 0.05, 200, order=4, save_every=50)
+
+
+def test_run_equals_the_steps_at_every_node():
+    """splitting_run (first/last flows merged across the steps of a node) = the plain step loop."""
+    x0 = VEHICLE.initial_state()
+    out = _vehicle_run(x0)
+    assert out.g.shape == (5, 3, 3) and out.xi.shape == (5, 3)
+    np.testing.assert_array_equal(out.g[0], x0.g)
+    for k, n in enumerate((50, 100, 150, 200), start=1):
+        g, q, M, P = run_steps(VEHICLE, x0, 0.05, n, 4)
+        for got, want in ((out.g[k], g), (out.q[k], q), (out.M[k], M), (out.P[k], P)):
+            assert float(jnp.max(jnp.abs(got - want))) <= 1e-13 * (1 + float(jnp.max(jnp.abs(want))))
+    # Node velocities are J⁻¹Π and M⁻¹P (hand: the models' matrices).
+    np.testing.assert_allclose(out.xi, np.linalg.solve(VEHICLE.inertia, np.asarray(out.M).T).T, rtol=1e-13)
+    mass = VEHICLE.mass * np.eye(3) + VEHICLE.added_mass
+    np.testing.assert_allclose(out.nu, np.linalg.solve(mass, np.asarray(out.P).T).T, rtol=1e-13)
+
+
+def test_simulate_returns_the_run_as_a_solution():
+    """``vj.simulate(scheme="splitting")`` (with and without the progress bar, which runs the same
+    steps in pieces) holds the driver's nodes, the scene's energy and Kelvin–Noether at them,
+    and no Newton statistics (an explicit scheme)."""
+    x0 = VEHICLE.initial_state()
+    out = _vehicle_run(x0)
+    for progress in (False, True):
+        sol = vj.simulate(VEHICLE, x0, 0.05, 200, scheme="splitting", order=4, save_every=50, progress=progress)
+        for name in ("g", "q", "M", "P", "xi", "nu"):
+            want = getattr(out, name)
+            assert float(jnp.max(jnp.abs(getattr(sol, name) - want))) <= 1e-13 * (1 + float(jnp.max(jnp.abs(want)))), name
+        np.testing.assert_allclose(sol.t, 2.5 * np.arange(5), rtol=1e-15)
+        n_body, a = jax.vmap(VEHICLE.body_configuration)(sol.g, sol.q), jax.vmap(VEHICLE.body_advected)(sol.g)
+        np.testing.assert_allclose(sol.energy, jax.vmap(VEHICLE.energy)(sol.xi, n_body, sol.nu, a), rtol=1e-14)
+        kn = jax.vmap(lambda *s: kelvin_noether(VEHICLE, *s))(sol.g, sol.q, sol.M, sol.P)[:, 0]
+        np.testing.assert_allclose(sol.kelvin_noether, kn, rtol=1e-14)
+        assert not np.any(sol.newton_iterations) and not np.any(sol.result) and bool(sol.succeeded)
+
+
+def test_simulate_rejects_what_does_not_apply():
+    x0 = VEHICLE.initial_state()
+    with pytest.raises(ValueError, match="tau: applies to scheme='dep' only"):
+        vj.simulate(VEHICLE, x0, 0.05, 10, scheme="splitting", tau="exp")
+    with pytest.raises(ValueError, match=r"order: expected one of \(2, 4, 6, 8\), got 1"):
+        vj.simulate(VEHICLE, x0, 0.05, 10, scheme="splitting", order=1)
+    with pytest.raises(ValueError, match="scheme: expected one of"):
+        vj.simulate(VEHICLE, x0, 0.05, 10, scheme="rk4")
+
+
+def test_long_run_invariants():
+    """10⁶ steps of the neutrally buoyant vehicle (bounded energy surface) in motion, through
+    ``vj.simulate``: every piece commutes with the symmetry, so Kelvin–Noether (vertical angular
+    momentum) and the horizontal linear momentum RP hold to round-off, R stays on SO(3)
+    (products of planar rotations); the energy error of a symplectic composition oscillates
+    without a trend."""
+    model = vj.models.UnderwaterVehicle(buoyancy=123.8 * 9.81)
+    x0 = model.initial_state(omega0=jnp.array([0.6, -0.4, 0.8]), v0=jnp.array([0.3, -0.2, 0.1]))
+    n, h, every = 1_000_000, 0.05, 1000
+    sol = vj.simulate(model, x0, h, n, scheme="splitting", order=2, save_every=every)
+    # Each of the 8 flows of a step rounds to ~ε; independent roundings add up like a random
+    # walk, √(8n) ε; 10√(8n) ε leaves room while a drift (~8n ε = 2e-9) would fail.
+    bound = 10 * math.sqrt(8 * n) * EPS
+    kn, scale = sol.kelvin_noether, sol.kelvin_noether_scale
+    assert float(jnp.max(jnp.abs(kn - kn[0]))) <= bound * float(jnp.max(scale))
+    p_space = jnp.einsum("tij,tj->ti", sol.g, sol.P)[:, :2]
+    assert float(jnp.max(jnp.abs(p_space - p_space[0]))) <= bound * float(jnp.max(jnp.abs(sol.P)))
+    assert float(jnp.max(vj.group_constraint_residual(model, sol.g))) <= bound
+    error = np.asarray(sol.energy) / float(sol.energy[0]) - 1
+    t = np.asarray(sol.t)
+    trend = np.polyfit(t, error, 1)[0] * t[-1]
+    amplitude = np.max(np.abs(error))
+    assert amplitude <= 1e-3, amplitude  # an O(h²) oscillation (measured 2.1e-4)
+    # Over ~8000 rotation periods a bounded oscillation fits a line of slope ~amplitude/T; a
+    # drift (non-symplectic RK) makes the fitted change comparable to the amplitude itself.
+    assert abs(trend) <= 0.05 * amplitude, (trend, amplitude)
+
+
+def test_heavy_top_equals_a_hand_written_strang_step():
+    """Strang's splitting of the heavy top written from the physics: half kick of the gravity
+    torque mg Γ×χ (Γ = Rᵀe_z), and rotations about the body axes, ω_k = Π_k/I_k,
+    R ← R·rot_k(tω_k), Π ← rot_kᵀΠ, composed symmetrically in the module's documented order of
+    the pieces for order 2."""
+    moments, chi = np.array([1.0, 0.8, 0.4]), np.array([0.05, -0.1, 0.5])
+    top = vj.models.HeavyTop(inertia=moments, center_of_mass=chi)
+    mgchi = float(top.mass * top.gravity) * jnp.asarray(chi)
+
+    def rot(k, th):
+        c, s = jnp.cos(th), jnp.sin(th)
+        i, j = (k + 1) % 3, (k + 2) % 3
+        return jnp.eye(3).at[i, i].set(c).at[j, j].set(c).at[j, i].set(s).at[i, j].set(-s)
+
+    def kick(R, Pi, t):
+        return R, Pi + t * jnp.cross(R[2], mgchi)
+
+    def axis(R, Pi, k, t):
+        Q = rot(k, t * Pi[k] / moments[k])
+        return R @ Q, Q.T @ Pi
+
+    # Strang over the pieces in the module's documented order, outermost first (the potential
+    # kick "V" and the body axes 0, 1, 2; the top has no translation): X₁(h/2)…X_m(h)…X₁(h/2).
+    hand = {"V": kick, **{k: functools.partial(lambda R, Pi, t, k: axis(R, Pi, k, t), k=k) for k in range(3)}}
+    pieces = [hand[p] for p in S.arrange(tuple(hand), S.resolve(2)[1])]
+
+    def hand_step(carry, _):
+        R, Pi = carry
+        for piece in pieces[:-1]:
+            R, Pi = piece(R, Pi, h / 2)
+        R, Pi = pieces[-1](R, Pi, h)
+        for piece in reversed(pieces[:-1]):
+            R, Pi = piece(R, Pi, h / 2)
+        return (R, Pi), None
+
+    h, n = 0.01, 100
+    x0 = top.initial_state()
+    (R, Pi), _ = jax.lax.scan(hand_step, (x0.g, jnp.asarray(moments) * x0.xi), None, length=n)
+    out = S.splitting_run(top, x0, h, n, order=2, save_every=n)
+    # Same operations up to association: round-off per step, over 100 steps.
+    assert float(jnp.max(jnp.abs(out.g[-1] - R))) <= 1e-13
+    assert float(jnp.max(jnp.abs(out.M[-1] - Pi))) <= 1e-13 * float(jnp.max(jnp.abs(Pi)))
+
+
+# --- scenes the splitting cannot take -------------------------------------------------------------
+def _scene(lagrangian, group=SO3(), advected=True, rho=None):
+    return vj.System(
+        group, lagrangian, advected=(LinearAction(group, rho), np.eye(group.matrix_size)[-1]) if advected else None,
+    )
+
+
+NOT_SEPARABLE = {
+    # term named in the error: its coefficient in the scene below
+    "cross term ξ–ν": "cross",
+    "rotational kinetic energy depends on the configuration": "inertia_n",
+    "not quadratic in ξ": "quartic",
+    "translational kinetic energy depends on the configuration": "mass_a",
+    "linear in the velocities": "linear",
+    "not positive definite": "negative",
+}
+
+
+_A0 = np.eye(3)[2]  # one object: System keeps a₀ in a static field, compared by identity
+
+
+def _coupled(xi, n, nu, a, c):
+    """A separable ℓ when every coefficient is 0; one scene function, so that all cases share one
+    compilation of the checks."""
+    kinetic = 0.5 * (1 - 2 * c["negative"] + c["inertia_n"] * n @ n) * xi @ xi + 0.5 * (1 + c["mass_a"] * a[0] ** 2) * nu @ nu
+    return kinetic + c["cross"] * xi @ nu + c["quartic"] * (xi @ xi) ** 2 + c["linear"] * xi @ a - n @ a
+
+
+@pytest.mark.parametrize("term", list(NOT_SEPARABLE))
+def test_non_separable_scene_is_rejected(term):
+    coefficients = {k: jnp.asarray(1.0 if k == NOT_SEPARABLE[term] else 0.0) for k in NOT_SEPARABLE.values()}
+    scene = vj.System(SO3(), _coupled, coefficients, advected=(LinearAction(SO3()), _A0), additional=LinearAction(SO3()))
+    x0 = vj.State(jnp.eye(3), jnp.ones(3), jnp.zeros(3), jnp.ones(3))
+    with pytest.raises(ValueError, match=term):
+        S.splitting_run(scene, x0, 0.1, 10)
+    separable_parts(eqx.tree_at(lambda s: s.params, scene, {k: jnp.asarray(0.0) for k in coefficients}))  # passes
+
+
+def test_non_separable_traced_scene_raises_at_run_time():
+    """With the scene's parameters traced (jit, grad, vmap over scenes) the same check runs as an
+    eqx.error_if: an error at run time, never silently wrong numbers."""
+    coefficients = {k: jnp.asarray(1.0 if k == "linear" else 0.0) for k in NOT_SEPARABLE.values()}
+    scene = vj.System(SO3(), _coupled, coefficients, advected=(LinearAction(SO3()), _A0), additional=LinearAction(SO3()))
+    x0 = vj.State(jnp.eye(3), jnp.ones(3), jnp.zeros(3), jnp.ones(3))
+    run = jax.jit(lambda c: S.splitting_run(eqx.tree_at(lambda s: s.params, scene, c), x0, 0.1, 10).g)
+    with pytest.raises(RuntimeError, match="linear in the velocities"):
+        jax.block_until_ready(run(coefficients))
+
+
+def test_unsupported_groups_and_actions_are_rejected():
+    ell = lambda xi, n, nu, a, p: 0.5 * xi @ xi  # noqa: E731
+    with pytest.raises(ValueError, match="supports SO3"):
+        separable_parts(_scene(ell, group=SE3(), advected=False))
+    with pytest.raises(ValueError, match="defining representation"):
+        separable_parts(_scene(lambda xi, n, nu, a, p: 0.5 * xi @ xi - a[0], rho=lambda g: g @ g))
+    full = np.eye(6) + 0.1 * (np.ones((6, 6)) - np.eye(6))  # SPD, not diagonal
+    with pytest.raises(ValueError, match="not diagonal in the standard basis"):
+        separable_parts(vj.models.RigidBody(group=SOn(4), inertia=full))
+
+
+# --- vmap, gradients --------------------------------------------------------------------------------
+def test_vmap_equals_member_by_member():
+    """Members differ in initial state and in parameters (traced: the checks run as error_if,
+    each member has its own principal frame, one with a non-diagonal inertia)."""
+    omegas = jnp.array([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0], [-0.5, 0.4, 0.2]])
+    x0s = [VEHICLE.initial_state(omega0=w) for w in omegas]
+    full = vj.models.UnderwaterVehicle(inertia=FULL_INERTIA + 4 * np.eye(3))
+    models = [VEHICLE, full, vj.models.UnderwaterVehicle(buoyancy=1210.0)]
+    stack = lambda trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees)  # noqa: E731
+    batched = jax.vmap(_vehicle_run)(stack(x0s), stack(models))
+    for k in range(3):
+        single = _vehicle_run(x0s[k], models[k])
+        for got, want in zip(jax.tree.leaves(batched), jax.tree.leaves(single)):
+            assert float(jnp.max(jnp.abs(got[k] - want))) <= 1e-13 * (1 + float(jnp.max(jnp.abs(want))))
+
+
+def test_ensemble_equals_simulate_member_by_member():
+    """``vj.ensemble(scheme="splitting")``: members in initial state and parameters."""
+    omegas = jnp.array([[0.1, 0.2, 0.3], [0.0, 0.0, 0.0], [-0.5, 0.4, 0.2]])
+    models = vj.vary(VEHICLE, buoyancy=jnp.array([1200.0, 1210.0, 1190.0]))
+    sol = vj.ensemble(models, vj.vary(VEHICLE.initial_state(), xi=omegas), 0.05, 200, system_axes=0,
+                      scheme="splitting", order=6, save_every=50)
+    for k in range(3):
+        model = vj.models.UnderwaterVehicle(buoyancy=[1200.0, 1210.0, 1190.0][k])
+        x0 = model.initial_state(omega0=omegas[k])
+        single = vj.simulate(model, x0, 0.05, 200, scheme="splitting", order=6, save_every=50)
+        for name in ("g", "q", "xi", "nu", "M", "P", "energy", "kelvin_noether"):
+            want = getattr(single, name)
+            got = getattr(sol, name)[k]
+            assert float(jnp.max(jnp.abs(got - want))) <= 1e-13 * (1 + float(jnp.max(jnp.abs(want)))), (k, name)
+
+
+def _loss(out):
+    weights = jnp.arange(9.0).reshape(3, 3)
+    loss = jnp.sum(out.g[-1] * weights) + jnp.sum(out.xi[-1])
+    return loss if out.q is None else loss + jnp.sum(out.q[-1] ** 2) + jnp.sum(out.P[-1])
+
+
+def _check_directional(f, x, grad, direction, eps):
+    exact = float(jnp.vdot(grad, direction))
+    approx = float((f(x + eps * direction) - f(x - eps * direction)) / (2 * eps))
+    # Central differences: O(eps²) truncation and O(ε/eps) round-off, both ≲ 1e-9 relative here.
+    assert abs(exact - approx) <= 1e-6 * max(abs(exact), 1e-8), (exact, approx)
+
+
+def test_gradients_match_central_differences():
+    """Plain reverse mode through ``vj.simulate``'s checkpointed scan, one gradient for every
+    vehicle parameter (a full
+    symmetric direction of the inertia moves the principal frame), the initial velocity and h."""
+    x0 = VEHICLE.initial_state()
+
+    def loss(args):
+        model, xi, h = args
+        x = vj.State(x0.g, xi, x0.q, x0.qdot)
+        return _loss(vj.simulate(model, x, h, 200, scheme="splitting", order=4, save_every=50))
+
+    args = (VEHICLE, x0.xi, jnp.asarray(0.05))
+    grads = eqx.filter_grad(loss)(args)
+    rng = np.random.default_rng(0)
+    for name in ("mass", "added_mass", "inertia", "buoyancy", "buoyancy_offset"):
+        value = getattr(VEHICLE, name)
+        direction = jnp.asarray(rng.normal(size=value.shape))
+        direction = direction + direction.T if value.ndim == 2 else direction
+        grad = getattr(grads[0], name)
+        assert np.all(np.isfinite(grad)), name
+        along = lambda v, name=name: loss((eqx.tree_at(lambda m: getattr(m, name), VEHICLE, v), *args[1:]))  # noqa: E731
+        _check_directional(along, value, grad, direction, 1e-6 * float(jnp.max(jnp.abs(value))))
+    _check_directional(lambda w: loss((VEHICLE, w, args[2])), x0.xi, grads[1], jnp.array([0.3, -0.2, 0.5]), 1e-6)
+    _check_directional(lambda h: loss((VEHICLE, x0.xi, h)), args[2], grads[2], jnp.asarray(1.0), 1e-7)
+
+
+def test_principal_axes_derivative():
+    """The JVP of J ↦ (U, I) against central differences for a full J (eigenvectors turn), and
+    finite at equal moments (the heavy top's (1, 1, 0.4)), where along a diagonal direction the
+    frame stays and dI is the direction's diagonal."""
+    J = jnp.asarray(FULL_INERTIA)
+    dJ = jnp.asarray([[0.3, -0.2, 0.1], [-0.2, 0.5, 0.4], [0.1, 0.4, -0.6]])
+    (U, I), (dU, dI) = jax.jvp(principal_axes, (J,), (dJ,))
+    eps = 1e-6
+    (Up, Ip), (Um, Im) = principal_axes(J + eps * dJ), principal_axes(J - eps * dJ)
+    np.testing.assert_allclose(dU, (Up - Um) / (2 * eps), atol=1e-8)
+    np.testing.assert_allclose(dI, (Ip - Im) / (2 * eps), atol=1e-8)
+    direction = jnp.diag(jnp.array([1.0, -0.5, 0.3]))
+    (U, I), (dU, dI) = jax.jvp(principal_axes, (TOP.inertia,), (direction,))
+    np.testing.assert_array_equal(U, np.eye(3))
+    np.testing.assert_array_equal(dU, np.zeros((3, 3)))
+    np.testing.assert_allclose(dI, [1.0, -0.5, 0.3], rtol=1e-15)
+
+
+# --- float32 ------------------------------------------------------------------------------------
+FLOAT32_SCRIPT = r"""
+import json
+import jax
+import jax.numpy as jnp
+import numpy as np
+import vi_jax as vj
+m = vj.models.UnderwaterVehicle()
+model = vj.models.UnderwaterVehicle(buoyancy=m.mass * m.gravity)  # W − B = 0 exactly in float32 too
+x0 = model.initial_state(omega0=jnp.array([0.6, -0.4, 0.8]), v0=jnp.array([0.3, -0.2, 0.1]))
+out = vj.simulate(model, x0, 0.05, 200, scheme="splitting", order=4, save_every=50)
+result = {k: np.asarray(getattr(out, k)[-1], np.float64).tolist() for k in ("g", "q", "M", "P")}
+result.update(dtype=str(out.g.dtype), kn=np.asarray(out.kelvin_noether, np.float64).ravel().tolist(),
+              kn_scale=float(out.kelvin_noether_scale.max()),
+              orthogonality=float(vj.group_constraint_residual(model, out.g).max()))
+print(json.dumps(result))
+"""
+
+
+def test_float32_runs_at_float32_accuracy():
+    """200 steps in a float32 process (x64 off) against float64 from the same float32-rounded
+    parameters, initial data and h, so that the runs differ by arithmetic round-off only. Each of
+    the ~48 flows of an order-4 step rounds to ~ε₃₂, and these add up like √(48n)·ε₃₂ (the
+    motion over 10 s amplifies them little: measured 2–4 √n·ε₃₂); a lost digit or a float64
+    leak would show. Kelvin–Noether and RᵀR = I hold to the same float32 round-off."""
+    env = {**os.environ, "JAX_ENABLE_X64": "0"}
+    proc = subprocess.run([sys.executable, "-c", FLOAT32_SCRIPT], capture_output=True, text=True, env=env, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    single = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert single["dtype"] == "float32"
+    as32 = lambda tree: jax.tree.map(lambda x: jnp.asarray(np.asarray(x, np.float32), np.float64), tree)  # noqa: E731
+    m = as32(VEHICLE)
+    model = eqx.tree_at(lambda v: v.buoyancy, m, m.mass * m.gravity)
+    x0 = as32(model.initial_state(omega0=jnp.array([0.6, -0.4, 0.8]), v0=jnp.array([0.3, -0.2, 0.1])))
+    double = S.splitting_run(model, x0, float(np.float32(0.05)), 200, order=4, save_every=50)
+    bound = 10 * math.sqrt(48 * 200) * float(np.finfo(np.float32).eps)
+    for k in ("g", "q", "M", "P"):
+        want = np.asarray(getattr(double, k)[-1])
+        assert np.max(np.abs(np.asarray(single[k]) - want)) <= bound * np.max(np.abs(want)), k
+    kn = np.asarray(single["kn"])
+    assert np.max(np.abs(kn - kn[0])) <= bound * single["kn_scale"]
+    assert single["orthogonality"] <= bound

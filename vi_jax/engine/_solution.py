@@ -1,0 +1,79 @@
+"""The trajectory every scheme returns (:class:`Solution`) and the input checks they share."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .. import _validation as val
+from .._system import AbstractSystem, State
+from ..solvers import SUCCESS
+
+
+class Solution(eqx.Module):
+    """Trajectory at the saved nodes (leading axis = time, n_saved + 1 rows).
+
+    ``g``/``R``: configuration; ``xi``/``omega``: body velocity and ``nu``: body velocity of the
+    additional dynamics, both from the continuous inverse Legendre map at the nodes; ``M``, ``P``:
+    body momenta (the discrete ones for ``scheme="dep"``, the continuous ones, which are the
+    state, for ``scheme="splitting"``); ``energy``; ``kelvin_noether`` (a scalar per node when the isotropy
+    algebra is one-dimensional, else one column per basis element) and ``kelvin_noether_scale``
+    (|M| + |P||n|, the size of the terms that cancel in it). Newton statistics per saved node
+    (the worst over the steps since the previous saved node; row 0 is the initial data):
+    ``newton_iterations``, ``newton_residual`` (relative), ``result`` (0 = success; an explicit
+    scheme has no Newton solve: zeros).
+    """
+
+    t: jax.Array
+    g: jax.Array
+    xi: jax.Array
+    q: jax.Array | None
+    nu: jax.Array | None
+    M: jax.Array
+    P: jax.Array | None
+    energy: jax.Array
+    kelvin_noether: jax.Array
+    kelvin_noether_scale: jax.Array
+    newton_iterations: jax.Array
+    newton_residual: jax.Array
+    result: jax.Array
+
+    @property
+    def R(self):
+        return self.g
+
+    @property
+    def omega(self):
+        return self.xi
+
+    @property
+    def succeeded(self):
+        return jnp.all(self.result == SUCCESS)
+
+
+def validate_inputs(system, x0, h, n_steps, save_every):
+    """Checks every scheme makes: the scene, x0 on the group and finite, h > 0, step counts."""
+    if not isinstance(system, AbstractSystem):
+        raise ValueError(f"system: expected a vi_jax system (AbstractSystem), got {type(system).__name__}")
+    if not isinstance(x0, State):
+        raise ValueError(f"x0: expected a vi_jax.State (e.g. model.initial_state()), got {type(x0).__name__}")
+    G = system.group
+    d, r = G.matrix_size, G.dim
+    g0 = val.as_array("x0.g", x0.g, (d, d))
+    xi0 = val.as_array("x0.xi", x0.xi, (r,))
+    val.check_finite("x0.g", g0)
+    val.check_finite("x0.xi", xi0)
+    val.check_on_group("x0.g", G, g0)
+    if system.has_additional:
+        if x0.q is None or x0.qdot is None:
+            raise ValueError("x0: this system has additional dynamics; expected x0.q and x0.qdot, got None")
+        m = jnp.shape(x0.q)[-1] if jnp.ndim(x0.q) else None
+        val.as_array("x0.q", x0.q, (m,))
+        val.as_array("x0.qdot", x0.qdot, (m,))
+        val.check_finite("x0.q", x0.q)
+        val.check_finite("x0.qdot", x0.qdot)
+    elif x0.q is not None or x0.qdot is not None:
+        raise ValueError("x0: this system has no additional dynamics; expected x0.q = x0.qdot = None")
+    val.check_finite("system parameters", val.numeric_leaves(system))
+    h = val.check_positive_scalar("h", h)
+    n_steps, save_every = val.check_steps(n_steps, save_every)
+    return h, n_steps, save_every
