@@ -17,7 +17,10 @@ where Newton stops converging, on the free rigid body, the heavy top and the und
 Every (system, scheme) compiles one vmapped program of fixed batch size and step count; all
 sweeps feed it arrays (h, inertia, ω₀, …) and reuse it.
 
-    python benchmarks/stability.py [--quick] [--out benchmarks/results]
+    python benchmarks/stability.py [--quick] [--out benchmarks/results] [--schemes splitting2 …] [--no-long]
+
+The explicit splitting (splitting2/4/6/8) has no Newton solve: its map shows where its energy
+error stays accurate or bounded (benchmarks/results/stability_splitting/).
 """
 
 import argparse
@@ -42,6 +45,7 @@ import vi_jax as vj  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _stability_cases as cases  # noqa: E402
 from _stability_newton import patched  # noqa: E402
+from _stability_plots import plot_long, plot_maps  # noqa: E402
 from _timing import write_json  # noqa: E402
 
 ACCURATE = 1e-3  # max relative energy error of an "accurate" run
@@ -55,7 +59,7 @@ QUICK = dict(
 )
 FULL = dict(
     n_steps=2000, save_every=20, n_h=16, n_spin=10, ratios=(1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6),
-    schemes=cases.VI_SCHEMES + cases.DIFFRAX_SCHEMES, long_steps=(1_000_000, 10_000_000),
+    schemes=cases.VI_SCHEMES + cases.SPLITTING_SCHEMES + cases.DIFFRAX_SCHEMES, long_steps=(1_000_000, 10_000_000),
     long_systems=("heavy_top",), gradient_systems=("rigid_body", "heavy_top"),
 )
 DAMPING_SCHEMES = ("cayley2", "exp2")  # each costs four more compilations where Newton failed
@@ -223,7 +227,10 @@ def gradient_check(kind, tau, n_steps=20):
         p = {k: jnp.asarray(v) for k, v in base.items()}
         p["omega"] = omega
         system, x0 = cases.build(kind, p)
-        sol = vj.simulate(system, x0, h, n_steps, tau=tau, order=2, throw=False)
+        if tau == "splitting":
+            sol = vj.simulate(system, x0, h, n_steps, scheme="splitting", order=2)
+        else:
+            sol = vj.simulate(system, x0, h, n_steps, tau=tau, order=2, throw=False)
         return jnp.sum(sol.g[-1]) + jnp.sum(sol.xi[-1]) + jnp.sum(sol.energy)
 
     grad = jax.jit(jax.vmap(jax.grad(loss, argnums=(0, 1))))
@@ -313,77 +320,6 @@ def growth(run):
     return out
 
 
-# --------------------------------------------------------------------------- plots
-
-
-def plot_maps(results, out_dir):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    markers = {1: ("x", "Newton max it."), 2: ("+", "non-finite"), 3: ("o", "exp singular"), 4: ("s", "diffrax failed")}
-    paths = []
-    for kind, per_scheme in results.items():
-        schemes = list(per_scheme)
-        ncol = min(4, len(schemes))
-        nrow = -(-len(schemes) // ncol)
-        fig, axes = plt.subplots(nrow, ncol, figsize=(4 * ncol, 3.4 * nrow), squeeze=False, sharex=True, sharey=True)
-        for ax, scheme in zip(axes.flat, schemes):
-            m = per_scheme[scheme]["map"]
-            n_spin, n_h = len(m["spin"]), len(m["hw"])
-            H, S = m["h"].reshape(n_spin, n_h), np.repeat(m["spin"], n_h).reshape(n_spin, n_h)
-            err = np.log10(np.clip(m["energy"], 1e-16, 1e3)).reshape(n_spin, n_h)
-            im = ax.scatter(H, S, c=err, marker="s", s=60, cmap="viridis", vmin=-16, vmax=3)
-            code = m["code"].reshape(n_spin, n_h)
-            for c, (mk, label) in markers.items():
-                sel = code == c
-                if sel.any():
-                    ax.scatter(H[sel], S[sel], marker=mk, c="red", s=14, label=label)
-            spins = np.asarray(m["spin"])
-            for k, style in ((np.pi, "--"), (2 * np.pi, ":")):
-                ax.plot(k / spins, spins, "w" + style, lw=1)
-            ax.set(xscale="log", yscale="log", title=scheme)
-            ax.set_xlim(H.min() / 2, H.max() * 2)
-            if ax in axes[:, 0]:
-                ax.set_ylabel("spin rate |ω₀| [rad/s]")
-            if ax in axes[-1]:
-                ax.set_xlabel("h [s]")
-            if any((code == c).any() for c in markers):
-                ax.legend(fontsize=6, loc="lower left")
-        for ax in axes.flat[len(schemes):]:
-            ax.axis("off")
-        fig.colorbar(im, ax=axes, label="log10 max |E/E₀ − 1|")
-        fig.suptitle(f"{kind}, {results[kind][schemes[0]]['map_steps']} steps: energy error, failures"
-                     " (white: |hω| = π dashed, 2π dotted)")
-        path = Path(out_dir) / f"stability_{kind}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(str(path))
-    return paths
-
-
-def plot_long(long_runs, out_dir):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    for label, run in long_runs.items():
-        steps = np.asarray(run["steps"][1:])
-        for ax, key in zip(axes, ("energy_error", "kelvin_noether_error")):
-            ax.loglog(steps, np.maximum(np.asarray(run[key][1:]), 1e-18), label=label, lw=0.8)
-    axes[0].set(xlabel="steps", ylabel="|E/E₀ − 1|", title="energy")
-    axes[1].set(xlabel="steps", ylabel="|ΔKN| / scale", title="Kelvin–Noether")
-    axes[1].legend(fontsize=7)
-    fig.tight_layout()
-    path = Path(out_dir) / "stability_long.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return str(path)
-
-
 # --------------------------------------------------------------------------- main
 
 
@@ -407,8 +343,14 @@ def main():
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", default="benchmarks/results")
     parser.add_argument("--systems", nargs="+", default=list(cases.SYSTEMS), choices=cases.SYSTEMS)
+    parser.add_argument("--schemes", nargs="+", default=None, help="a subset of the preset's schemes (default: all)")
+    parser.add_argument("--no-long", action="store_true", help="skip the long runs")
     args = parser.parse_args()
-    cfg = QUICK if args.quick else FULL
+    cfg = dict(QUICK if args.quick else FULL)
+    if args.schemes:
+        cfg["schemes"] = tuple(args.schemes)
+    if args.no_long:
+        cfg["long_systems"] = ()
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
@@ -418,7 +360,7 @@ def main():
         run = Batches(kind, scheme, cfg)
         m = sweep_map(run, kind, cfg)
         entry = dict(map=m, map_steps=cfg["n_steps"], summary=map_summary(m), stiff=sweep_stiff(run, kind, cfg))
-        if scheme in cases.VI_SCHEMES:
+        if scheme in cases.VI_SCHEMES + cases.SPLITTING_SCHEMES:
             singular.setdefault(kind, {})[scheme] = near_singular(run, kind)
             d = newton_damping(kind, scheme, m, cfg) if scheme in DAMPING_SCHEMES else None
             if d:
@@ -433,7 +375,7 @@ def main():
 
     gradients = {}
     for kind in tqdm([k for k in cfg["gradient_systems"] if k in args.systems], desc="gradients"):
-        gradients[kind] = {tau: gradient_check(kind, tau) for tau in ("cayley", "exp")}
+        gradients[kind] = {tau: gradient_check(kind, tau) for tau in ("cayley", "exp", "splitting")}
 
     long_runs = {}
     for kind in [k for k in cfg["long_systems"] if k in args.systems]:

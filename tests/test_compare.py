@@ -11,16 +11,17 @@ from vi_jax.studies import work_precision as _compare
 TINY = dataclasses.replace(
     _compare.QUICK,
     T=5.0,
-    schemes=(("cayley", 1),),
-    steps={"vehicle": {1: (100,)}},
+    schemes=(("cayley", 1), ("splitting", 4)),
+    steps={"vehicle": {1: (100,), ("splitting", 4): (100,)}},
     tolerances={"dopri8": (1e-6,)},
     long_T=5.0,
     long_steps=100,
-    long_schemes=(("cayley", 1),),
+    long_schemes=(("cayley", 1, 100), ("splitting", 4, 100)),
     long_tolerances={"dopri8": (1e-6,)},
     n_save=1,
 )
-PEERS = {"vi_jax cayley order 1", "diffrax Dopri8 (PID)", "diffrax RK4 (fixed step)"}
+VI_JAX = {"vi_jax cayley order 1", "vi_jax splitting order 4"}
+PEERS = VI_JAX | {"diffrax Dopri8 (PID)", "diffrax RK4 (fixed step)"}
 
 
 def _finite(x):
@@ -46,10 +47,11 @@ def test_tiny_study_writes_json_and_plots(tmp_path):
     for rows in long.values():
         for row in rows:
             assert all(_finite(row[k]) for k in ("median_s", "energy_error", "kelvin_noether_error", "group_drift"))
-    (vi,) = long["vi_jax cayley order 1"]
-    assert vi["kelvin_noether_error"] <= 1e-12
-    assert vi["group_drift"] <= 1e-12
-    for peer in PEERS - {"vi_jax cayley order 1"}:
+    for peer in VI_JAX:
+        (vi,) = long[peer]
+        assert vi["kelvin_noether_error"] <= 1e-12
+        assert vi["group_drift"] <= 1e-12
+    for peer in PEERS - VI_JAX:
         assert min(r["kelvin_noether_error"] for r in long[peer]) > 1e-12
     assert set(result["long_horizon"]["energy_vs_time"]) == PEERS
 

@@ -9,11 +9,11 @@ import numpy as np
 from .. import _validation as val
 from .._diagnostics import kelvin_noether, kelvin_noether_scale
 from ..solvers import RESULT_MESSAGES, SUCCESS
-from .._system import AbstractSystem, State
+from .._system import State
 from ..discrete import composition_coefficients, inverse_legendre, legendre_initial_state
 from ..discrete._composition import ORDERS
 from ..lie import difference_map
-from .._accuracy import AccuracyWarning, warn_if_meaningless
+from .._accuracy import warn_if_meaningless
 from ._advance import advance_loop, advance_scan
 from ._placement import placement
 from .._precision import full_precision

@@ -10,20 +10,23 @@ from ..studies.work_precision import ACCURACIES
 
 
 def _style(peer):
-    """vi_jax: solid, colour by order, marker by τ; diffrax: dashed, grey-blue family."""
+    """vi_jax: solid, colour by order, marker by scheme (Cayley ●, exp □, splitting ◆, thick);
+    diffrax: dashed, colour by solver, dotted on a hand-written vector field."""
     if peer.startswith("vi_jax"):
-        _, tau, _, order = peer.split()
-        colour = {"1": "tab:red", "2": "tab:orange", "4": "tab:green", "6": "tab:purple"}[order]
-        return dict(color=colour, ls="-", marker="o" if tau == "cayley" else "s", mfc="none" if tau == "exp" else colour)
+        _, scheme, _, order = peer.split()
+        colour = {"1": "tab:red", "2": "tab:orange", "4": "tab:green", "6": "tab:purple", "8": "tab:pink"}[order]
+        marker = {"cayley": "o", "exp": "s", "splitting": "D"}[scheme]
+        return dict(color=colour, ls="-", lw=2.2 if scheme == "splitting" else 1, marker=marker,
+                    mfc="none" if scheme == "exp" else colour)
     colour = {"Tsit5": "tab:blue", "Dopri5": "tab:cyan", "Dopri8": "navy", "Kvaerno5": "tab:brown", "RK4": "black"}[peer.split()[1]]
-    return dict(color=colour, ls="--", marker="^" if "PID" in peer else "x")
+    return dict(color=colour, ls=":" if "field" in peer else "--", lw=1, marker="^" if "PID" in peer else "x")
 
 
 def _plot_curves(ax, peers, key):
     for peer, rows in peers.items():
         pts = sorted((r["median_s"], r[key]) for r in rows if r[key] is not None)
         if pts:
-            ax.loglog(*zip(*pts), ms=4, lw=1, label=peer, **_style(peer))
+            ax.loglog(*zip(*pts), ms=4, label=peer, **_style(peer))
     ax.xaxis.set_minor_formatter(NullFormatter())
     ax.grid(True, which="both", alpha=0.3)
     ax.set_xlabel("compiled run time [s] (median)")
@@ -52,7 +55,8 @@ def plot_long_horizon(result, path):
         _plot_curves(ax, data["peers"], key)
         ax.set_ylabel(ylabel)
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"{data['system']}, T = {data['T']:g} s ({data['vi_jax_steps']:,} steps for vi_jax and RK4)", fontsize=10)
+    rk4 = f"; RK4: {data['rk4_steps']:,} steps" if data["rk4_steps"] else ""
+    fig.suptitle(f"{data['system']}, T = {data['T']:g} s (vi_jax step counts in the table{rk4})", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
@@ -64,8 +68,9 @@ def plot_energy_vs_time(result, path):
     for peer, s in data["energy_vs_time"].items():
         style = _style(peer)
         style.pop("marker"), style.pop("mfc", None)
+        style["lw"] = 1.2 * style["lw"]
         running_max = np.maximum.accumulate(np.maximum(s["energy_error"], 1e-17))
-        ax.loglog(s["t"], running_max, lw=1.2, label=f"{peer} ({s['setting']})", **style)
+        ax.loglog(s["t"], running_max, label=f"{peer} ({s['setting']})", **style)
     ax.set_xlabel("t [s]")
     ax.set_ylabel("max over [0, t] of |E/E₀ − 1| (saved nodes)")
     ax.set_title(f"{data['system']}: energy error along the run", fontsize=10)
