@@ -8,7 +8,7 @@ Part 1 — time, 10⁴ steps, one process per XLA configuration (``default``; ``
 ``final`` (the final position and attitude; ``save_every = n_steps``) and ``trajectory`` (the
 mean |q|² over nodes saved every 10 steps). Rows: reverse mode (``jax.value_and_grad`` w.r.t. all
 parameters) with and without ``checkpoint``; forward mode: one ``jvp`` and the least-squares
-Jacobian (``jacfwd`` of the saved positions w.r.t. the 11 parameters of vi_jax.fitting._fit). Each time
+Jacobian (``jacfwd`` of the saved positions w.r.t. the 11 parameters of vi_jax.fitting._parametrisation). Each time
 is divided by the forward pass (the loss alone).
 
 Part 2 — memory, a fresh process per (loss, variant, number of steps) under the ``tuned`` flags
@@ -72,7 +72,7 @@ def time_rows(config, n_steps=10_000):
     import numpy as np
 
     import vi_jax as vj
-    from vi_jax.fitting._fit import Parametrisation
+    from vi_jax.fitting import Parametrisation
 
     sys.path.insert(0, str(HERE))
     from _timing import time_compiled

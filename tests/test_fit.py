@@ -6,25 +6,16 @@ import argparse
 import functools
 import json
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
 
 import vi_jax as vj
-from vi_jax.fitting._fit import (
-    DEFAULT_FREE,
-    OFFSET_SCALE,
-    Observations,
-    Parametrisation,
-    _jacobian,
-    _weights,
-    fit,
-    identifiability,
-    levenberg_marquardt,
-    synthesize,
-)
+from vi_jax.fitting import Observations, Parametrisation, fit, identifiability, levenberg_marquardt, synthesize
+from vi_jax.fitting._fit import DEFAULT_FREE
+from vi_jax.fitting._parametrisation import OFFSET_SCALE
+from vi_jax.fitting._residuals import _jacobian, _weights
 from vi_jax.cli.fit import add_fit_arguments, run_fit
 
 TRUTH = vj.models.UnderwaterVehicle()

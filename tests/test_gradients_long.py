@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import vi_jax as vj
-from vi_jax.fitting._fit import Parametrisation
+from vi_jax.fitting import Parametrisation
 
 MODEL = vj.models.UnderwaterVehicle()
 X0 = MODEL.initial_state()

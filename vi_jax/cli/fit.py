@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fitting._fit import DEFAULT_FREE, MATRICES, OFFSET_SCALE, PARAMETERS
+from ..fitting._fit import DEFAULT_FREE
+from ..fitting._parametrisation import MATRICES, OFFSET_SCALE, PARAMETERS
 from ..plots.fit import plot_loss
 
 
@@ -56,7 +57,7 @@ def _perturbed(truth, free, perturb, rng):
 def _load(path):
     import jax.numpy as jnp
 
-    from ..fitting._fit import Observations
+    from ..fitting import Observations
     from .._system import State
 
     try:
@@ -76,7 +77,7 @@ def run_fit(args):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from ..fitting._fit import Parametrisation, fit, identifiability, synthesize
+    from ..fitting import Parametrisation, fit, identifiability, synthesize
     from ..models import UnderwaterVehicle
 
     truth = UnderwaterVehicle()
