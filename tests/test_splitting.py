@@ -203,6 +203,20 @@ def test_non_separable_traced_scene_raises_at_run_time():
         jax.block_until_ready(run(coefficients))
 
 
+def test_non_separable_traced_scene_without_throw_is_flagged():
+    """``throw=False`` (as for the DEP scheme): no run-time error, the result code
+    ``NOT_SEPARABLE`` after the initial node and NaN nodes; a separable scene runs as usual."""
+    scene = vj.System(SO3(), _coupled, {k: jnp.asarray(0.0) for k in NOT_SEPARABLE.values()},
+                      advected=(LinearAction(SO3()), _A0), additional=LinearAction(SO3()))
+    x0 = vj.State(jnp.eye(3), jnp.ones(3), jnp.zeros(3), jnp.ones(3))
+    run = jax.jit(lambda c: vj.simulate(eqx.tree_at(lambda s: s.params, scene, c), x0, 0.1, 10, scheme="splitting", throw=False))
+    bad = run({k: jnp.asarray(1.0 if k == "linear" else 0.0) for k in NOT_SEPARABLE.values()})
+    assert int(bad.result[0]) == vj.solvers.SUCCESS and np.all(np.asarray(bad.result[1:]) == vj.solvers.NOT_SEPARABLE)
+    assert np.all(np.isnan(np.asarray(bad.g[1:]))) and not bool(bad.succeeded)
+    good = run({k: jnp.asarray(0.0) for k in NOT_SEPARABLE.values()})
+    assert bool(good.succeeded) and np.all(np.isfinite(np.asarray(good.g)))
+
+
 def test_unsupported_groups_and_actions_are_rejected():
     ell = lambda xi, n, nu, a, p: 0.5 * xi @ xi  # noqa: E731
     with pytest.raises(ValueError, match="supports SO3"):

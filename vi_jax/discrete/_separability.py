@@ -104,13 +104,18 @@ def separability_residuals(system, J, M, diagonal):
     return out
 
 
-def enforce(residuals, x, *, concrete):
+def enforce(residuals, x, *, concrete, throw=True):
     """Raise ``ValueError`` for the first failing term (``concrete``: the scene's values are known
-    now), or attach an ``eqx.error_if`` to ``x`` (traced scene); returns x."""
+    now); for a traced scene attach an ``eqx.error_if`` to ``x`` (``throw``) or only report.
+    Returns (x, separable): separable is True, or the traced verdict for ``throw=False`` (an
+    ``error_if`` costs ~0.1 ms per call on CPU: ``benchmarks/splitting_overhead.py``)."""
+    separable = True
     for message, ratio in residuals:
         if concrete:
             if not bool(ratio <= 1.0):
                 raise ValueError(f"system: {message} (residual {float(ratio):.3g} × the round-off tolerance)")
-        else:
+        elif throw:
             x = eqx.error_if(x, ~(ratio <= 1.0), f"system: {message}")
-    return x
+        else:
+            separable = separable & (ratio <= 1.0)
+    return x, separable

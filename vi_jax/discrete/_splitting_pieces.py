@@ -50,7 +50,8 @@ class Phase(NamedTuple):
 
 class SeparableParts(eqx.Module):
     """What the splitting needs of a separable scene: the scene (for V), the principal frame U
-    (SO(3); None on SO(n)), the inverse principal moments 1/I_k, M'⁻¹ = UᵀM⁻¹U, and per algebra
+    (SO(3); None on SO(n)), the inverse principal moments 1/I_k, M'⁻¹ = UᵀM⁻¹U, whether the scene
+    passed the separability check (True, or a traced flag: ``separable_parts(throw=False)``), per algebra
     axis k the plane (i, j) in which exp(θê_k) turns e_i towards e_j and the coordinate pairs
     (m₁, m₂, σ) that Ad*_{exp(θê_k)} rotates."""
 
@@ -58,6 +59,7 @@ class SeparableParts(eqx.Module):
     frame: jax.Array | None
     inv_inertia: jax.Array
     inv_mass: jax.Array | None
+    separable: jax.Array | bool
     planes: tuple = eqx.field(static=True)
     pairs: tuple = eqx.field(static=True)
 
@@ -145,10 +147,11 @@ def _derive(system, dtype):
     return U, 1.0 / moments, inv_mass, residuals
 
 
-def separable_parts(system, dtype=None) -> SeparableParts:
+def separable_parts(system, dtype=None, *, throw=True) -> SeparableParts:
     """Derive J = ∂²ℓ/∂ξ², M = ∂²ℓ/∂ν² and V = −ℓ(0, n, 0, a) by autodiff, check that ℓ is
     separable (``ValueError`` naming the failing term when the scene is concrete, else a run-time
-    ``eqx.error_if``) and diagonalise J on SO(3); arrays in ``dtype`` (default: float).
+    ``eqx.error_if``, or with ``throw=False`` the flag ``separable``) and diagonalise J on SO(3);
+    arrays in ``dtype`` (default: float).
     Derivatives with respect to the scene's parameters are those of the splitting of this
     separable ℓ: a parameter that would add a non-separable term (zero at its current value) is
     not seen by them."""
@@ -157,9 +160,9 @@ def separable_parts(system, dtype=None) -> SeparableParts:
     _check_group(system)
     dtype = jnp.dtype(jnp.result_type(float) if dtype is None else dtype)
     U, inv_inertia, inv_mass, residuals = _derive(system, dtype)
-    inv_inertia = enforce(residuals, inv_inertia, concrete=val.is_concrete(system))
+    inv_inertia, separable = enforce(residuals, inv_inertia, concrete=val.is_concrete(system), throw=throw)
     planes, pairs = _axes(system.group)
-    return SeparableParts(system, U, inv_inertia, inv_mass, planes, pairs)
+    return SeparableParts(system, U, inv_inertia, inv_mass, separable, planes, pairs)
 
 
 # --- the state in the principal frame ----------------------------------------------------------

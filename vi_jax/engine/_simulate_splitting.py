@@ -8,12 +8,27 @@ import jax.numpy as jnp
 from .._diagnostics import kelvin_noether, kelvin_noether_scale
 from .._system import State
 from ..discrete._splitting import advance, initial_phase, nodes, resolve, separable_parts
-from ..solvers import SUCCESS
+from ..solvers import NOT_SEPARABLE, SUCCESS
 from ._solution import Solution
 
 
-def _diagnostics(system, nodes_, h, save_every):
+def _verdict(parts, nodes_):
+    """A scene that failed the traced separability check (``throw=False``): its nodes after the
+    first are NaN and their result is ``NOT_SEPARABLE`` (nothing silently wrong)."""
+    rows = nodes_.M.shape[0]
+    result = jnp.where((jnp.arange(rows) > 0) & ~jnp.asarray(parts.separable), NOT_SEPARABLE, SUCCESS).astype(jnp.int32)
+    if parts.separable is True:
+        return nodes_, result
+    keep = lambda x: None if x is None else jnp.where(  # noqa: E731
+        (result == SUCCESS).reshape((-1,) + (1,) * (x.ndim - 1)), x, jnp.nan
+    )
+    return jax.tree.map(keep, nodes_), result
+
+
+def _diagnostics(parts, nodes_, h, save_every):
     """Energy and Kelvin–Noether at the nodes (the continuous momenta are the state)."""
+    system = parts.system
+    nodes_, result = _verdict(parts, nodes_)
     n = jax.vmap(system.body_configuration)(nodes_.g, nodes_.q)
     a = jax.vmap(system.body_advected)(nodes_.g)
     energy = jax.vmap(system.energy)(nodes_.xi, n, nodes_.nu, a)
@@ -36,7 +51,7 @@ def _diagnostics(system, nodes_, h, save_every):
         kelvin_noether_scale=kn_scale,
         newton_iterations=zeros,
         newton_residual=jnp.zeros(rows, h.dtype),
-        result=jnp.full(rows, SUCCESS, jnp.int32),
+        result=result,
     )
 
 
@@ -44,7 +59,7 @@ def _diagnostics(system, nodes_, h, save_every):
 def _run(parts, x0, h, n_saved, save_every, method, arrangement, checkpoint):
     phase0 = initial_phase(parts, x0)
     saved = advance(parts, method, arrangement, h, phase0, n_saved, save_every, checkpoint)
-    return _diagnostics(parts.system, nodes(parts, phase0, saved), h, save_every)
+    return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
 
 
 _initial_jit = eqx.filter_jit(initial_phase)
@@ -53,7 +68,7 @@ _advance_jit = eqx.filter_jit(advance)
 
 @eqx.filter_jit
 def _assemble(parts, phase0, saved, h, save_every):
-    return _diagnostics(parts.system, nodes(parts, phase0, saved), h, save_every)
+    return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
 
 
 def _with_progress(parts, x0, h, n_saved, save_every, method, arrangement):
@@ -74,10 +89,10 @@ def _with_progress(parts, x0, h, n_saved, save_every, method, arrangement):
     return _assemble(parts, phase0, saved, h, save_every)
 
 
-def simulate_splitting(system, x0: State, h, n_saved, save_every, *, order, method, arrangement, checkpoint, progress, dtype):
+def simulate_splitting(system, x0: State, h, n_saved, save_every, *, order, method, arrangement, checkpoint, progress, dtype, throw):
     """The splitting run of ``order`` as a :class:`Solution` (inputs validated by the caller)."""
     method, arrangement = resolve(order, method, arrangement)
-    parts = separable_parts(system, dtype)
+    parts = separable_parts(system, dtype, throw=throw)
     if progress:
         return _with_progress(parts, x0, h, n_saved, save_every, method, arrangement)
     return _run(parts, x0, h, n_saved, save_every, method, arrangement, bool(checkpoint))

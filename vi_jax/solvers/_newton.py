@@ -15,6 +15,7 @@ SUCCESS = 0
 MAX_ITERATIONS = 1
 NONFINITE = 2
 SINGULAR_DIFFERENCE_MAP = 3
+NOT_SEPARABLE = 4  # scheme="splitting" on a traced scene that is not separable (throw=False)
 
 CHORD_ITERATIONS = 2
 
@@ -22,6 +23,7 @@ RESULT_MESSAGES = {
     MAX_ITERATIONS: "Newton did not converge within max_newton_iterations",
     NONFINITE: "Newton produced a non-finite value",
     SINGULAR_DIFFERENCE_MAP: "h|ξ| reached the singular set of τ = exp (a rotation angle ≥ π per step)",
+    NOT_SEPARABLE: "the scene is not separable, which scheme='splitting' needs (a traced scene's run-time check)",
 }
 
 

@@ -41,7 +41,7 @@ def _vi_jax_program(tau, order, n_steps, n_saved):
 
     def run(system, x0, h):
         if tau == "splitting":
-            return simulate(system, x0, h, n_steps, scheme="splitting", order=order, save_every=save_every)
+            return simulate(system, x0, h, n_steps, scheme="splitting", order=order, save_every=save_every, throw=False)
         return simulate(system, x0, h, n_steps, tau=tau, order=order, save_every=save_every, throw=False)
 
     return jax.jit(run)

@@ -1,0 +1,67 @@
+"""Fixed cost of one ``vj.simulate(scheme="splitting")`` call against its cost per step, inside
+``jax.jit`` with the scene as an argument (as the work-precision study runs it): at T = 50 s the
+fixed part decides the comparison with diffrax (docs/work_precision.md).
+
+Times (compiled code, median and minimum of ``--repeats`` runs) for the vehicle at order 6:
+the whole call at n = 1 and n = 200 steps with ``throw=False`` (as the study runs it) and
+``throw=True`` (the traced separability check as an ``eqx.error_if``), ``separable_parts`` alone (J, M, V by autodiff, the
+separability checks, the principal frame), and an empty program on the same arguments.
+
+    python benchmarks/splitting_overhead.py [--fast-loops] [--repeats 300]
+"""
+
+import argparse
+import sys
+import time
+
+ARGS = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ARGS.add_argument("--fast-loops", action="store_true", help="vj.enable_fast_cpu_loops() first")
+ARGS.add_argument("--repeats", type=int, default=300)
+ARGS = ARGS.parse_args()
+
+import vi_jax as vj  # noqa: E402
+
+if ARGS.fast_loops:
+    vj.enable_fast_cpu_loops()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from vi_jax.discrete._splitting_pieces import separable_parts  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+
+def timed(fn, *args):
+    exe = jax.jit(fn).lower(*args).compile()
+    jax.block_until_ready(exe(*args))
+    samples = []
+    for _ in range(ARGS.repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(exe(*args))
+        samples.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(samples)), 1e3 * float(np.min(samples))
+
+
+def main():
+    model = vj.models.UnderwaterVehicle()
+    x0, h = model.initial_state(), jnp.asarray(0.25)
+    rows = {}
+    for throw in (False, True):
+        for n in (1, 200):
+            run = lambda m, x, h, n=n, t=throw: vj.simulate(  # noqa: E731
+                m, x, h, n, scheme="splitting", order=6, save_every=n, throw=t
+            ).g[-1]
+            rows[f"simulate, n = {n}" + (", throw" if throw else "")] = timed(run, model, x0, h)
+    rows["separable_parts only"] = timed(lambda m: separable_parts(m).inv_inertia, model)
+    rows["empty program"] = timed(lambda m, x, h: x.g * h, model, x0, h)
+    print(f"{'XLA loop option' if ARGS.fast_loops else 'XLA default flags'}, vehicle, order 6 ({sys.argv[0]})")
+    for label, (median, best) in rows.items():
+        print(f"  {label:24s} median {median:.3f} ms   min {best:.3f} ms")
+    per_step = (rows["simulate, n = 200"][0] - rows["simulate, n = 1"][0]) / 199
+    print(f"  per step ≈ {1e3 * per_step:.2f} µs; fixed ≈ {rows['simulate, n = 1'][0] - per_step:.3f} ms")
+
+
+if __name__ == "__main__":
+    main()
