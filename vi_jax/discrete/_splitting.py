@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
+from .._saved_nodes import scan_saved_nodes
 from .._system import State
 from ._splitting_pieces import from_phase, piece_flows, separable_parts, to_phase, velocities
 
@@ -243,13 +244,10 @@ def splitting_step(parts, h, state: SplittingState, order: int = 2, *, method=No
     return SplittingState(*from_phase(parts, _steps(flows, pieces, table, h, s, 1)))
 
 
-SAVE_BLOCK = 128  # saved nodes per inner scan: one long output buffer costs XLA:CPU more than a step
-
-
 def advance(parts, method, arrangement, h, phase, n_saved, save_every, checkpoint=False):
     """``n_saved`` nodes of ``save_every`` steps; returns the saved principal-frame states.
-    ``checkpoint``: reverse mode stores the state at the saved nodes only and recomputes the
-    steps between them (memory ∝ saved nodes, not steps × stages)."""
+    ``checkpoint``: reverse mode stores the states at the saved nodes and block boundaries only
+    and recomputes the steps between them (memory ∝ saved nodes, not steps × stages)."""
     flows = piece_flows(parts)
     pieces = arrange(tuple(flows), arrangement)
     table = stage_table(method)
@@ -258,21 +256,7 @@ def advance(parts, method, arrangement, h, phase, n_saved, save_every, checkpoin
         s = _steps(flows, pieces, table, h, _first(flows, pieces, float(table[0, 0]), h, s), save_every)
         return s, s
 
-    if checkpoint:
-        node = jax.checkpoint(node)
-
-    def block(s, _):
-        return jax.lax.scan(node, s, None, length=SAVE_BLOCK)
-
-    n_blocks, rest = divmod(n_saved, SAVE_BLOCK)
-    out = []
-    if n_blocks:
-        phase, saved = jax.lax.scan(block, phase, None, length=n_blocks)
-        out.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), saved))
-    if rest:
-        phase, saved = jax.lax.scan(node, phase, None, length=rest)
-        out.append(saved)
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs), *out) if len(out) > 1 else out[0]
+    return scan_saved_nodes(node, phase, n_saved, checkpoint)[1]
 
 
 def initial_phase(parts, x0: State):

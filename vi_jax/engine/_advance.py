@@ -15,6 +15,7 @@ import math
 import jax
 import jax.numpy as jnp
 
+from .._saved_nodes import SAVE_BLOCK, scan_saved_nodes
 from ..discrete import dep_step
 from ..solvers import SUCCESS
 
@@ -42,9 +43,6 @@ def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
         return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
 
     return one_step
-
-
-SAVE_BLOCK = 128  # saved nodes per inner scan (see _advance)
 
 
 def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter, checkpoint=False):
@@ -81,24 +79,7 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         state, stats = one_step(state, None) if save_every == 1 else node_steps(state)
         return state, (state, stats)
 
-    if checkpoint:
-        node = jax.checkpoint(node)
-
-    def block(state, _):
-        return jax.lax.scan(node, state, None, length=SAVE_BLOCK)
-
-    if checkpoint:
-        block = jax.checkpoint(block)
-
-    n_blocks, rest = divmod(length, SAVE_BLOCK)
-    pieces = []
-    if n_blocks:
-        state, out = jax.lax.scan(block, state, None, length=n_blocks)
-        pieces.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out))
-    if rest:
-        state, out = jax.lax.scan(node, state, None, length=rest)
-        pieces.append(out)
-    saved, stats = jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
+    state, (saved, stats) = scan_saved_nodes(node, state, length, checkpoint)
     return state, saved, stats
 
 

@@ -40,9 +40,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
-from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
-from ._simulate import SCHEMES, NewtonFailure, Solution, _default_rtol, _validate, simulate
-from ._solution import validate_inputs
+from ._simulate import NewtonFailure, Solution, _default_rtol, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
@@ -154,14 +152,9 @@ def ensemble(
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them.
     """
-    val.check_choice("scheme", scheme, SCHEMES)
-    if scheme == "splitting":
-        if tau is not None:
-            raise ValueError(f"tau: applies to scheme='dep' only (the splitting has no difference map), got {tau!r}")
-        if method == "batched":
-            raise ValueError("method: 'batched' is the DEP scheme's vehicle kernel; the splitting runs as 'vmap' or 'auto'")
-        order = val.check_choice("order", 2 if order is None else order, SPLITTING_ORDERS)
     val.check_choice("method", method, METHODS)
+    if scheme == "splitting" and method == "batched":
+        raise ValueError("method: 'batched' is the DEP scheme's vehicle kernel; the splitting runs as 'vmap' or 'auto'")
     sys_axes = _leaf_axes("system_axes", system, system_axes)
     state_axes = _leaf_axes("x0_axes", x0, x0_axes)
     counts = {
@@ -179,14 +172,9 @@ def ensemble(
     (n_members,) = sizes
     if n_members < 1:
         raise ValueError("x0_axes, system_axes: expected at least one member, got 0")
-    if scheme == "splitting":
-        h, n_steps, save_every = validate_inputs(_take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, save_every)
-        tau_map = None
-    else:
-        order = 1 if order is None else order
-        h, n_steps, save_every, tau_map = _validate(
-            _take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, tau or "cayley", order, save_every
-        )
+    h, n_steps, save_every, tau_map, order = validate_scheme(
+        _take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order
+    )
     val.check_finite("system parameters", val.numeric_leaves(system))
     val.check_finite("x0", x0)
     if val.is_concrete(x0.g):

@@ -7,18 +7,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
-from .._diagnostics import kelvin_noether, kelvin_noether_scale
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..discrete import composition_coefficients, inverse_legendre, legendre_initial_state
 from ..discrete._composition import ORDERS
+from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
 from ..lie import difference_map
 from .._accuracy import warn_if_meaningless
 from ._advance import advance_loop, advance_scan
 from ._placement import placement
 from .._precision import full_precision
 from ._simulate_splitting import simulate_splitting
-from ._solution import Solution, validate_inputs
+from ._solution import Solution, node_invariants, validate_inputs
 
 
 class NewtonFailure(RuntimeError):
@@ -40,17 +40,24 @@ def _node_diagnostics(system, states, rtol, max_iter):
         lambda g, q, M, P, z: inverse_legendre(system, g, q, M, P, z, rtol=rtol, max_iterations=max_iter)
     )
     xi, nu = inv(states.g, states.q, states.M, states.P, states.z)
-    n = jax.vmap(system.body_configuration)(states.g, states.q)
-    a = jax.vmap(system.body_advected)(states.g)
-    energy = jax.vmap(system.energy)(xi, n, nu, a)
-    kn = jax.vmap(lambda *s: kelvin_noether(system, *s))(states.g, states.q, states.M, states.P)
-    if kn.shape[-1] == 1:
-        kn = kn[..., 0]
-    kn_scale = jax.vmap(lambda *s: kelvin_noether_scale(system, *s))(states.g, states.q, states.M, states.P)
-    return xi, nu, energy, kn, kn_scale
+    return (xi, nu) + node_invariants(system, states.g, states.q, states.M, states.P, xi, nu)
 
 
 SCHEMES = ("dep", "splitting")
+
+
+def validate_scheme(system, x0, h, n_steps, save_every, scheme, tau, order):
+    """Input checks and the scheme's defaults: (h, n_steps, save_every, τ map (None for the
+    splitting), order)."""
+    val.check_choice("scheme", scheme, SCHEMES)
+    if scheme == "splitting":
+        if tau is not None:
+            raise ValueError(f"tau: applies to scheme='dep' only (the splitting has no difference map), got {tau!r}")
+        h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every)
+        return h, n_steps, save_every, None, val.check_choice("order", 2 if order is None else order, SPLITTING_ORDERS)
+    order = 1 if order is None else order
+    h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau or "cayley", order, save_every)
+    return h, n_steps, save_every, tau, order
 
 
 def simulate(
@@ -85,9 +92,9 @@ def simulate(
     the separability check runs at run time: ``throw=True`` raises there, ``throw=False`` records
     ``NOT_SEPARABLE`` in ``Solution.result`` (NaN nodes) and costs ~0.1 ms less per call.
     A concrete call compiles once per ``n_steps // save_every``.
- ``throw=True``
-    raises :class:`NewtonFailure` (or an equinox runtime error under ``jit``) when a step fails;
-    ``throw=False`` records it in ``Solution.result``. ``progress=True`` shows a progress bar
+
+    DEP: ``throw=True`` raises :class:`NewtonFailure` (or an equinox runtime error under
+    ``jit``) when a step fails; ``throw=False`` records it in ``Solution.result``. ``progress=True`` shows a progress bar
     (outside ``jit`` only). Jittable, vmappable and differentiable (implicit-function gradients).
     Reverse mode is checkpointed by default (memory grows with the number of saved nodes and
     blocks, not with the number of steps; the forward pass is recomputed once);
@@ -101,15 +108,7 @@ def simulate(
     one-time :class:`PerformanceWarning`: single trajectories are latency-bound there), "cpu" or
     a ``jax.Device``.
     """
-    val.check_choice("scheme", scheme, SCHEMES)
-    if scheme == "splitting":
-        if tau is not None:
-            raise ValueError(f"tau: applies to scheme='dep' only (the splitting has no difference map), got {tau!r}")
-        h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every)
-        order = 2 if order is None else order
-    else:
-        h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau or "cayley", 1 if order is None else order, save_every)
-        rule, gammas = composition_coefficients(1 if order is None else order)
+    h, n_steps, save_every, tau, order = validate_scheme(system, x0, h, n_steps, save_every, scheme, tau, order)
     dtype = jnp.result_type(x0.g, x0.xi, h)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
@@ -127,6 +126,7 @@ def simulate(
                     sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=progress, **options)
         warn_if_meaningless(sol.energy, "simulate")
         return sol
+    rule, gammas = composition_coefficients(order)
     rtol = _default_rtol(dtype) if rtol is None else float(rtol)
     options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
     with full_precision():

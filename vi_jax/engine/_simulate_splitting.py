@@ -5,11 +5,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._diagnostics import kelvin_noether, kelvin_noether_scale
 from .._system import State
 from ..discrete._splitting import advance, initial_phase, nodes, resolve, separable_parts
 from ..solvers import NOT_SEPARABLE, SUCCESS
-from ._solution import Solution
+from ._solution import Solution, node_invariants
 
 
 def _verdict(parts, nodes_):
@@ -29,15 +28,8 @@ def _diagnostics(parts, nodes_, h, save_every):
     """Energy and Kelvin–Noether at the nodes (the continuous momenta are the state)."""
     system = parts.system
     nodes_, result = _verdict(parts, nodes_)
-    n = jax.vmap(system.body_configuration)(nodes_.g, nodes_.q)
-    a = jax.vmap(system.body_advected)(nodes_.g)
-    energy = jax.vmap(system.energy)(nodes_.xi, n, nodes_.nu, a)
-    kn = jax.vmap(lambda *s: kelvin_noether(system, *s))(nodes_.g, nodes_.q, nodes_.M, nodes_.P)
-    if kn.shape[-1] == 1:
-        kn = kn[..., 0]
-    kn_scale = jax.vmap(lambda *s: kelvin_noether_scale(system, *s))(nodes_.g, nodes_.q, nodes_.M, nodes_.P)
+    energy, kn, kn_scale = node_invariants(system, nodes_.g, nodes_.q, nodes_.M, nodes_.P, nodes_.xi, nodes_.nu)
     rows = nodes_.M.shape[0]
-    zeros = jnp.zeros(rows, jnp.int32)
     return Solution(
         t=h * save_every * jnp.arange(rows, dtype=h.dtype),
         g=nodes_.g,
@@ -49,7 +41,7 @@ def _diagnostics(parts, nodes_, h, save_every):
         energy=energy,
         kelvin_noether=kn,
         kelvin_noether_scale=kn_scale,
-        newton_iterations=zeros,
+        newton_iterations=jnp.zeros(rows, jnp.int32),
         newton_residual=jnp.zeros(rows, h.dtype),
         result=result,
     )

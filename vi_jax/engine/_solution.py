@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _validation as val
+from .._diagnostics import kelvin_noether, kelvin_noether_scale
 from .._system import AbstractSystem, State
 from ..solvers import SUCCESS
 
@@ -48,6 +49,19 @@ class Solution(eqx.Module):
     @property
     def succeeded(self):
         return jnp.all(self.result == SUCCESS)
+
+
+def node_invariants(system, g, q, M, P, xi, nu):
+    """Energy, Kelvin–Noether (a scalar per node for a one-dimensional isotropy algebra) and its
+    scale at nodes (leading axis) with body momenta (M, P) and velocities (ξ, ν)."""
+    n = jax.vmap(system.body_configuration)(g, q)
+    a = jax.vmap(system.body_advected)(g)
+    energy = jax.vmap(system.energy)(xi, n, nu, a)
+    kn = jax.vmap(lambda *s: kelvin_noether(system, *s))(g, q, M, P)
+    if kn.shape[-1] == 1:
+        kn = kn[..., 0]
+    kn_scale = jax.vmap(lambda *s: kelvin_noether_scale(system, *s))(g, q, M, P)
+    return energy, kn, kn_scale
 
 
 def validate_inputs(system, x0, h, n_steps, save_every):
