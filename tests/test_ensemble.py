@@ -51,12 +51,15 @@ def assert_members_equal(sol, refs, rtol):
 @pytest.mark.parametrize("method", ["batched", "vmap"])
 def test_ensemble_equals_simulate_member_by_member(method):
     """Initial states and parameters batched together; every member's trajectory and
-    diagnostics equal its own unbatched run (vmap: the same arithmetic; batched kernel: the
-    paper's eqs. 73–74, the same scheme, equal to round-off; τ = exp: next test)."""
+    diagnostics equal its own unbatched run (vmap: the same equations, compiled batched and
+    unbatched, so each step may stop at a different iterate within Newton's tolerance 64ε: a
+    random walk of √n such steps, with a factor 4 for its tail; batched kernel: the paper's
+    eqs. 73–74, the same scheme, equal to round-off; τ = exp: next test)."""
     refs = references("cayley")
     sol = ensemble(MODELS, STATES, H, N_STEPS, system_axes=0, save_every=SAVE_EVERY, method=method)
     assert sol.q.shape == (B, N_STEPS // SAVE_EVERY + 1, 3)
-    assert_members_equal(sol, refs, 1e-13 if method == "vmap" else 1e-10)
+    vmap_rtol = 4 * 64 * np.finfo(np.float64).eps * np.sqrt(N_STEPS)
+    assert_members_equal(sol, refs, vmap_rtol if method == "vmap" else 1e-10)
     assert np.all(np.asarray(member_converged(sol)))
     assert np.max(np.asarray(sol.newton_residual)) <= 64 * np.finfo(float).eps
     # Smooth members converge on the common path (Newton + 2 chord steps) at every step.

@@ -108,7 +108,10 @@ class System(AbstractSystem):
         self.params = params
         if advected is not None:
             action, a0 = advected
-            advected = (action, np.asarray(a0))
+            a0 = np.asarray(a0, dtype=float)
+            # Static fields must hash by value (one compiled program per scene, not per
+            # instance) and hold no arrays: a₀ is kept as its shape and a tuple of floats.
+            advected = (action, a0.shape, tuple(a0.ravel().tolist()))
         self.advected = advected
         self.additional = additional
 
@@ -125,7 +128,10 @@ class System(AbstractSystem):
 
     @property
     def advected_reference(self):
-        return None if self.advected is None else self.advected[1]
+        if self.advected is None:
+            return None
+        _, shape, values = self.advected
+        return np.asarray(values, dtype=float).reshape(shape)
 
     @property
     def configuration_action(self):
