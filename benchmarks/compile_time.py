@@ -1,0 +1,69 @@
+"""Compile time and step cost of ``vj.simulate`` with XLA:CPU's default (fusion) emitters and
+with its elemental emitters (``--xla_cpu_use_fusion_emitters=false``, which ``tests/conftest.py``
+uses to shorten the compile-bound test suite).
+
+    python benchmarks/compile_time.py        # ≈ 2 min; writes benchmarks/results/compile_time.json
+
+Each configuration runs in its own process (XLA reads its flags once). Per scene: the first call
+(trace + compile + run), XLA's backend compile time summed over the process (JAX's monitoring
+events), and the median of 5 compiled runs of 20,000 steps, every node saved.
+"""
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CONFIGS = {"fusion emitters (default)": "", "elemental emitters": "--xla_cpu_use_fusion_emitters=false"}
+CASES = [("UnderwaterVehicle", 1), ("UnderwaterVehicle", 2), ("HeavyTop", 2)]
+N_STEPS = 20_000
+
+
+def child():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from jax._src import monitoring
+
+    import vi_jax as vj
+
+    compile_s = []
+    monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **_: compile_s.append(duration) if event.endswith("backend_compile_duration") else None
+    )
+    rows = []
+    for scene, order in CASES:
+        model = getattr(vj.models, scene)()
+        x0 = model.initial_state()
+        run = lambda: jax.block_until_ready(vj.simulate(model, x0, 0.01, N_STEPS, order=order).q)  # noqa: E731
+        start = time.perf_counter()
+        run()
+        first = time.perf_counter() - start
+        samples = []
+        for _ in range(5):
+            start = time.perf_counter()
+            run()
+            samples.append(time.perf_counter() - start)
+        rows.append(dict(scene=scene, order=order, first_call_s=first, us_per_step=statistics.median(samples) / N_STEPS * 1e6))
+    print("JSON " + json.dumps(dict(rows=rows, backend_compile_s=sum(compile_s))))
+
+
+def main():
+    results = {}
+    for name, flag in CONFIGS.items():
+        env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip())
+        out = subprocess.run([sys.executable, __file__, "--child"], env=env, capture_output=True, text=True, check=True).stdout
+        results[name] = json.loads(next(line for line in out.splitlines() if line.startswith("JSON "))[5:])
+        print(f"{name}: backend compile {results[name]['backend_compile_s']:.1f} s")
+        for row in results[name]["rows"]:
+            print(f"  {row['scene']:17s} order {row['order']}: first call {row['first_call_s']:5.2f} s, {row['us_per_step']:6.2f} us/step")
+    path = Path(__file__).resolve().parent / "results" / "compile_time.json"
+    path.write_text(json.dumps(dict(n_steps=N_STEPS, configs=results), indent=2))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    child() if "--child" in sys.argv else main()
