@@ -138,8 +138,13 @@ def test_values_and_gradients_finite_at_zero(group, tau):
     def round_trip(x):
         return jnp.sum(tau.tau_inv(group, tau.tau(group, x)))
 
+    def hessian_times_ones(x):
+        # a NaN or inf anywhere in the Hessian reaches H·1 (NaN·0 = inf·0 = NaN): the same
+        # finiteness check as the full Hessian at a fraction of its compile time (SO(4) exp)
+        return jax.jvp(jax.grad(f), (x,), (jnp.ones_like(x),))[1]
+
     zero = jnp.zeros(group.dim)
-    checks = jax.jit(lambda x: (f(x), jax.grad(f)(x), jax.hessian(f)(x), jax.grad(round_trip)(x)))(zero)
+    checks = jax.jit(lambda x: (f(x), jax.grad(f)(x), hessian_times_ones(x), jax.grad(round_trip)(x)))(zero)
     for value in checks:
         assert np.all(np.isfinite(value))
     np.testing.assert_allclose(checks[3], np.ones(group.dim), atol=1e-12)  # d(τ⁻¹∘τ) = id

@@ -153,8 +153,14 @@ def _capacity(n_saved: int) -> int:
 
 def _rows(sol, n):
     """The first ``n`` rows, sliced on the host: an eager device slice would compile a small
-    program for every new ``n``."""
-    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], next(iter(x.devices()))), sol)
+    program for every new ``n``. Each row keeps its device and its committedness: a committed
+    array would make a later ``jit`` that mixes it with fresh inputs compile anew."""
+
+    def first_rows(x):
+        rows = np.asarray(x)[:n]
+        return jax.device_put(rows, next(iter(x.devices()))) if x.committed else jax.device_put(rows)
+
+    return jax.tree.map(first_rows, sol)
 
 
 def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
