@@ -154,13 +154,10 @@ def _capacity(n_saved: int) -> int:
 def _rows(sol, n):
     """The first ``n`` rows, sliced on the host: an eager device slice would compile a small
     program for every new ``n``. Each row keeps its device and its committedness: a committed
-    array would make a later ``jit`` that mixes it with fresh inputs compile anew."""
-
-    def first_rows(x):
-        rows = np.asarray(x)[:n]
-        return jax.device_put(rows, next(iter(x.devices()))) if x.committed else jax.device_put(rows)
-
-    return jax.tree.map(first_rows, sol)
+    array would make a later ``jit`` that mixes it with fresh inputs compile anew. An uncommitted
+    row goes to the default device, which inside :func:`placement` is the run's."""
+    place = lambda x: next(iter(x.devices())) if x.committed else None  # noqa: E731
+    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], place(x)), sol)
 
 
 def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
