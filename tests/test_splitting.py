@@ -229,6 +229,14 @@ def test_unsupported_groups_and_actions_are_rejected():
 
 
 # --- vmap, gradients --------------------------------------------------------------------------------
+def assert_same_arithmetic(got, want, *, n_steps, flows_per_step, label=None):
+    """A batched run against the single one: the same operations up to association (a batched
+    lowering may reorder sums, depending on the compiler and CPU), so ≲ 1 ulp of difference per
+    sub-flow, adding up over the steps (the motion is bounded)."""
+    bound = flows_per_step * n_steps * EPS * (1 + float(jnp.max(jnp.abs(want))))
+    assert float(jnp.max(jnp.abs(got - want))) <= bound, label
+
+
 def test_vmap_equals_member_by_member():
     """Members differ in initial state and in parameters (traced: the checks run as error_if,
     each member has its own principal frame, one with a non-diagonal inertia)."""
@@ -241,7 +249,7 @@ def test_vmap_equals_member_by_member():
     for k in range(3):
         single = _vehicle_run(x0s[k], models[k])
         for got, want in zip(jax.tree.leaves(batched), jax.tree.leaves(single)):
-            assert float(jnp.max(jnp.abs(got[k] - want))) <= 1e-13 * (1 + float(jnp.max(jnp.abs(want))))
+            assert_same_arithmetic(got[k], want, n_steps=200, flows_per_step=3 * 6)  # order 4: 6 stages
 
 
 def test_ensemble_equals_simulate_member_by_member():
@@ -257,7 +265,7 @@ def test_ensemble_equals_simulate_member_by_member():
         for name in ("g", "q", "xi", "nu", "M", "P", "energy", "kelvin_noether"):
             want = getattr(single, name)
             got = getattr(sol, name)[k]
-            assert float(jnp.max(jnp.abs(got - want))) <= 1e-13 * (1 + float(jnp.max(jnp.abs(want)))), (k, name)
+            assert_same_arithmetic(got, want, n_steps=200, flows_per_step=3 * 10, label=(k, name))  # order 6: 10 stages
 
 
 def _loss(out):

@@ -101,7 +101,8 @@ def simulate(
     ``checkpoint=False`` stores every step instead.
 
     Called on concrete inputs, one compiled program serves every ``n_steps`` and ``save_every``
-    with the same saved-node capacity (a power of two): the step counts are traced integers.
+    with the same saved-node capacity (1024, or the next power of two above it): the step
+    counts are traced integers.
     Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths.
     A conservative run whose energy error says it is meaningless warns (:class:`AccuracyWarning`).
     ``device``: where a concrete run executes — None (the default device; on an accelerator a
@@ -146,9 +147,15 @@ def simulate(
     return sol
 
 
+MIN_CAPACITY = 1024
+
+
 def _capacity(n_saved: int) -> int:
-    """Saved-node buffer size: the next power of two (one program per capacity)."""
-    return 1 << max(n_saved - 1, 0).bit_length()
+    """Saved-node buffer size (one program per capacity): at least ``MIN_CAPACITY``, so every
+    run of up to 1024 saved nodes shares one program (a new capacity costs a full compile,
+    seconds; the unused rows cost no measurable time, ``python benchmarks/capacity.py``), then
+    the next power of two."""
+    return max(MIN_CAPACITY, 1 << max(n_saved - 1, 0).bit_length())
 
 
 def _rows(sol, n):
