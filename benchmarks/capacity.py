@@ -23,17 +23,16 @@ N_SAVED = [10, 100, 1000]
 def main():
     model = vj.models.UnderwaterVehicle()
     x0 = model.initial_state()
-    default = _simulate._capacity
-    power_of_two = lambda n: 1 << max(n - 1, 0).bit_length()  # noqa: E731
+    default = _simulate.MIN_CAPACITY
     rows = []
     for n in N_SAVED:
         row = dict(n_saved=n)
-        for name, capacity in (("power of two", power_of_two), ("minimum 1024", default)):
-            _simulate._capacity = capacity
+        for name, minimum in (("power of two", 1), ("minimum 1024", default)):
+            _simulate.MIN_CAPACITY = minimum
             run = lambda: vj.simulate(model, x0, 0.01, n, progress=False).q  # noqa: E731
             first, median, _ = time_compiled(run)
-            row[name] = dict(capacity=capacity(n), first_call_s=first, call_ms=median * 1e3)
-        _simulate._capacity = default
+            row[name] = dict(capacity=_simulate._capacity(n), first_call_s=first, call_ms=median * 1e3)
+        _simulate.MIN_CAPACITY = default
         rows.append(row)
         print(f"{n:5d} saved nodes: " + "; ".join(f"{k}: capacity {v['capacity']}, call {v['call_ms']:.2f} ms" for k, v in row.items() if k != "n_saved"))
     write_json(Path(__file__).resolve().parent / "results" / "capacity.json", dict(scene="UnderwaterVehicle", rows=rows))

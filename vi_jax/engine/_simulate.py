@@ -153,8 +153,8 @@ MIN_CAPACITY = 1024
 def _capacity(n_saved: int) -> int:
     """Saved-node buffer size (one program per capacity): at least ``MIN_CAPACITY``, so every
     run of up to 1024 saved nodes shares one program (a new capacity costs a full compile,
-    seconds; the unused rows cost no measurable time, ``python benchmarks/capacity.py``), then
-    the next power of two."""
+    seconds; the unused rows change a short call's ~10 ms by less than its run-to-run spread,
+    ``python benchmarks/capacity.py``), then the next power of two."""
     return max(MIN_CAPACITY, 1 << max(n_saved - 1, 0).bit_length())
 
 
