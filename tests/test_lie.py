@@ -150,6 +150,24 @@ def test_values_and_gradients_finite_at_zero(group, tau):
     np.testing.assert_allclose(checks[3], np.ones(group.dim), atol=1e-12)  # d(τ⁻¹∘τ) = id
 
 
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_son_exp_and_log_match_scipy(n):
+    """SO(n)'s scaled-Taylor exp against scipy's Padé expm, and its series log inverting it."""
+    import scipy.linalg
+
+    group = lie.SOn(n)
+    exp, log = jax.jit(group.exp), jax.jit(group.log)
+    rng = np.random.default_rng(n)
+    for scale in (1e-6, 0.1, 1.0, 10.0, 300.0):
+        x = rng.normal(size=group.dim) * scale / np.sqrt(group.dim)
+        X = np.asarray(group.hat(jnp.asarray(x)))
+        # scaling and squaring: the 2^s squarings (2^s ≤ 4‖X‖_F) amplify a few ulps of error
+        # in either method ∝ ‖X‖_F; 64ε(1 + ‖X‖_F) leaves 4× room over the worst measured
+        close(exp(jnp.asarray(x)), scipy.linalg.expm(X), 64 * EPS * (1 + np.linalg.norm(X)))
+        y = x * min(1.0, 3.0 / np.linalg.norm(x))  # every rotation angle < π: log's domain
+        close(log(exp(jnp.asarray(y))), y, 64 * EPS)
+
+
 def test_dexp_alpha_series_matches_closed_form():
     """α(θ) series and closed form agree on θ ∈ [0.08, 0.12] (both sides of the switch)."""
     from vi_jax.lie._series import dexp_inv_alpha
