@@ -7,13 +7,17 @@
   (``lax.fori_loop`` → ``while``) writing into a buffer of static ``capacity``: one compiled
   program serves every ``n_steps`` whose node count fits the capacity (``simulate`` rounds
   the capacity up to a power of two). Not reverse-differentiable, so used only on concrete
-  inputs, where nothing differentiates the call.
+  inputs, where nothing differentiates the call. There a composition's fractions are traced
+  too (:class:`TracedComposition`): orders 4 and 6 share one program.
 """
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
 
 from .._saved_nodes import SAVE_BLOCK, scan_saved_nodes
 from ..discrete import dep_step
@@ -31,11 +35,40 @@ def _sub_step(system, tau, rule, rtol, max_iter):
     return sub_step
 
 
+MAX_SUB_STEPS = 9  # the longest composition (order 6, Kahan & Li's 9 stages)
+
+
+class TracedComposition(eqx.Module):
+    """A composition's sub-step fractions γ_i as traced data, zero-padded to ``MAX_SUB_STEPS``,
+    with their number: the loop programs of orders 4 and 6 are one compiled program."""
+
+    fractions: Float[Array, " 9"]
+    count: Int[Array, ""]
+
+
+def traced_composition(gammas):
+    """``gammas`` of a composition as a :class:`TracedComposition`; a single step stays static."""
+    if len(gammas) == 1:
+        return gammas
+    padded = np.zeros(MAX_SUB_STEPS)
+    padded[: len(gammas)] = gammas
+    return TracedComposition(jnp.asarray(padded), jnp.asarray(len(gammas), jnp.int32))
+
+
 def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
     """One (composed) step; Newton statistics are the worst over its sub-steps."""
     sub_step = _sub_step(system, tau, rule, rtol, max_iter)
 
     def one_step(state, _=None):
+        if isinstance(gammas, TracedComposition):  # a loop of traced length over the fractions
+            _, stats0 = jax.eval_shape(sub_step, state, h)
+            zero = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats0)
+
+            def body(i, carry):
+                state, stats = sub_step(carry[0], gammas.fractions[i].astype(h.dtype) * h)
+                return state, jax.tree.map(jnp.maximum, carry[1], stats)
+
+            return jax.lax.fori_loop(0, gammas.count, body, (state, zero))
         if len(gammas) == 1:
             return sub_step(state, gammas[0] * h)
         # A rolled loop over the composition's sub-steps: one copy of the step to compile.
@@ -84,7 +117,8 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
 
 
 def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter):
-    """``n_nodes`` (traced, ≤ ``capacity``) saved nodes of ``save_every`` (traced) steps each.
+    """``n_nodes`` (traced, ≤ ``capacity``) saved nodes of ``save_every`` (traced) steps each;
+    ``gammas`` may be a :class:`TracedComposition`.
 
     Returns (final state, saved states, stats), the last two with ``capacity`` rows; rows past
     ``n_nodes`` repeat the initial state (valid data for the node diagnostics) with zero stats.

@@ -14,7 +14,7 @@ from ..discrete._composition import ORDERS
 from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
 from ..lie import difference_map
 from .._accuracy import warn_if_meaningless
-from ._advance import advance_loop, advance_scan
+from ._advance import advance_loop, advance_scan, traced_composition
 from ._placement import placement
 from .._precision import full_precision
 from ._simulate_splitting import simulate_splitting
@@ -102,7 +102,8 @@ def simulate(
 
     Called on concrete inputs, one compiled program serves every ``n_steps`` and ``save_every``
     with the same saved-node capacity (1024, or the next power of two above it): the step
-    counts are traced integers.
+    counts are traced integers, and so are the sub-step fractions of orders 4 and 6 (one
+    program for both).
     Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths.
     A conservative run whose energy error says it is meaningless warns (:class:`AccuracyWarning`).
     ``device``: where a concrete run executes — None (the default device; on an accelerator a
@@ -135,11 +136,12 @@ def simulate(
             sol = _simulate_scan(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
         elif progress:
             with placement(device):
-                sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **options)
+                sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **dict(options, gammas=traced_composition(gammas)))
         else:
             with placement(device):
                 count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-                sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **options)
+                loop_options = dict(options, gammas=traced_composition(gammas))
+                sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **loop_options)
                 sol = _rows(sol, n_saved + 1)
     if throw:
         sol = _check_failure(sol, save_every)
