@@ -27,3 +27,24 @@ def write_json(path, payload):
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(payload, indent=2))
     print(f"wrote {path}")
+
+
+def fast_loops_from_argv():
+    """``--fast-loops`` on the command line: call ``vi_jax.enable_fast_cpu_loops()`` (before any
+    JAX work) and return True."""
+    import argparse
+
+    import vi_jax
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--fast-loops", action="store_true", help="vi_jax.enable_fast_cpu_loops() first")
+    if parser.parse_args().fast_loops:
+        return vi_jax.enable_fast_cpu_loops()
+    return False
+
+
+def write_config_json(name, fast_loops, **payload):
+    """``benchmarks/results/<name>[_fast_loops].json`` with the XLA configuration named."""
+    suffix = "_fast_loops" if fast_loops else ""
+    config = "enable_fast_cpu_loops()" if fast_loops else "default XLA flags"
+    write_json(Path(__file__).resolve().parent / "results" / f"{name}{suffix}.json", dict(config=config, **payload))

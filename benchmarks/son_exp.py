@@ -11,9 +11,7 @@ compiled step of a 1000-step run.
 ``--fast-loops`` calls ``vi_jax.enable_fast_cpu_loops()`` first (the XLA:CPU loop option).
 """
 
-import argparse
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -24,7 +22,7 @@ jax.config.update("jax_enable_x64", True)
 import vi_jax as vj  # noqa: E402
 from vi_jax.lie import SOn  # noqa: E402
 
-from _timing import time_compiled, write_json  # noqa: E402
+from _timing import fast_loops_from_argv, time_compiled, write_config_json  # noqa: E402
 
 N_STEPS = 1000
 
@@ -53,11 +51,7 @@ def rigid_body(group, n):
 
 
 def main():
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--fast-loops", action="store_true")
-    args = parser.parse_args()
-    if args.fast_loops:
-        vj.enable_fast_cpu_loops()
+    fast_loops = fast_loops_from_argv()
     rows = []
     for n in (3, 4, 5):
         row = dict(n=n)
@@ -67,9 +61,7 @@ def main():
             print(f"SO({n}) {name:24s}: derivatives compile {r['derivatives_compile_s']:5.2f} s; rigid body first call "
                   f"{r['rigid_body']['first_call_s']:5.2f} s, {r['rigid_body']['us_per_step']:6.1f} us/step")
         rows.append(row)
-    suffix = "_fast_loops" if args.fast_loops else ""
-    write_json(Path(__file__).resolve().parent / "results" / f"son_exp{suffix}.json",
-               dict(config="enable_fast_cpu_loops()" if args.fast_loops else "default XLA flags", n_steps=N_STEPS, rows=rows))
+    write_config_json("son_exp", fast_loops, n_steps=N_STEPS, rows=rows)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """``vj.simulate`` on concrete inputs compiles one program per scene and scheme for every run of
 up to 1024 saved nodes: the step counts are traced integers, the saved-node buffer has a
 minimum capacity (a new program costs seconds of compilation, ``python benchmarks/capacity.py``);
-compositions of orders 4 and 6 share one program (their fractions are traced)."""
+orders 2, 4 and 6 share one program (their sub-step fractions are traced)."""
 
 import logging
 
@@ -23,13 +23,14 @@ def test_runs_of_different_lengths_share_one_program(caplog):
     assert compiled == []
 
 
-def test_compositions_of_orders_4_and_6_share_one_program(caplog):
-    """Their sub-step fractions are traced data: order 6 runs on order 4's program."""
+def test_orders_2_4_and_6_share_one_program(caplog):
+    """The trapezoid compositions' sub-step fractions are traced data: one program for the three."""
     model = vj.models.HeavyTop()  # as in tests/test_orders.py, whose runs this one shares
     x0 = model.initial_state()
-    four = vj.simulate(model, x0, 0.05, 20, order=4)
+    runs = {2: vj.simulate(model, x0, 0.05, 20, order=2)}
     with jax.log_compiles(), caplog.at_level(logging.DEBUG, logger="jax"):
-        six = vj.simulate(model, x0, 0.05, 20, order=6)
-    assert not np.array_equal(np.asarray(four.g[-1]), np.asarray(six.g[-1]))  # a different scheme ran
+        runs.update({order: vj.simulate(model, x0, 0.05, 20, order=order) for order in (4, 6)})
+    finals = [np.asarray(sol.g[-1]) for sol in runs.values()]
+    assert not any(np.array_equal(a, b) for a, b in zip(finals, finals[1:]))  # different schemes ran
     compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_simulate_loop)")]
     assert compiled == []

@@ -102,8 +102,8 @@ def simulate(
 
     Called on concrete inputs, one compiled program serves every ``n_steps`` and ``save_every``
     with the same saved-node capacity (1024, or the next power of two above it): the step
-    counts are traced integers, and so are the sub-step fractions of orders 4 and 6 (one
-    program for both).
+    counts are traced integers, and so are the sub-step fractions of orders 2, 4 and 6 (one
+    program for the three).
     Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths.
     A conservative run whose energy error says it is meaningless warns (:class:`AccuracyWarning`).
     ``device``: where a concrete run executes — None (the default device; on an accelerator a
@@ -131,16 +131,17 @@ def simulate(
     rule, gammas = composition_coefficients(order)
     rtol = _default_rtol(dtype) if rtol is None else float(rtol)
     options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
+    # concrete runs: the trapezoid compositions (orders 2, 4, 6) as traced data, one program
+    loop_options = dict(options, gammas=gammas if rule == "left" else traced_composition(gammas))
     with full_precision():
         if not val.is_concrete((system, x0, h)):
             sol = _simulate_scan(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
         elif progress:
             with placement(device):
-                sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **dict(options, gammas=traced_composition(gammas)))
+                sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **loop_options)
         else:
             with placement(device):
                 count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-                loop_options = dict(options, gammas=traced_composition(gammas))
                 sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **loop_options)
                 sol = _rows(sol, n_saved + 1)
     if throw:
