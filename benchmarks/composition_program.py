@@ -11,7 +11,6 @@ compile + run; the traced peer compiles once) and the median compiled step of ea
 ``--fast-loops`` calls ``vi_jax.enable_fast_cpu_loops()`` first (the XLA:CPU loop option).
 """
 
-
 import jax
 import jax.numpy as jnp
 

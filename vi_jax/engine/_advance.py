@@ -44,7 +44,7 @@ class TracedComposition(eqx.Module):
     compile instead of three; steps 0.6–1.4× the static ones, within the run-to-run spread,
     default XLA and the loop option: ``python benchmarks/composition_program.py``)."""
 
-    fractions: Float[Array, " 9"]
+    fractions: Float[Array, " max_sub_steps"]
     count: Int[Array, ""]
 
 
@@ -55,20 +55,26 @@ def traced_composition(gammas) -> TracedComposition:
     return TracedComposition(jnp.asarray(padded), jnp.asarray(len(gammas), jnp.int32))
 
 
+def _repeat_keeping_worst(step, state, n):
+    """``n`` (traced) applications of ``step(state, i) -> (state, stats)``; the stats are the
+    elementwise maximum over them, from zeros (``SUCCESS``, no iterations)."""
+    _, stats0 = jax.eval_shape(step, state, 0)
+
+    def body(i, carry):
+        state, stats = step(carry[0], i)
+        return state, jax.tree.map(jnp.maximum, carry[1], stats)
+
+    return jax.lax.fori_loop(0, n, body, (state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats0)))
+
+
 def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
     """One (composed) step; Newton statistics are the worst over its sub-steps."""
     sub_step = _sub_step(system, tau, rule, rtol, max_iter)
 
     def one_step(state, _=None):
         if isinstance(gammas, TracedComposition):  # a loop of traced length over the fractions
-            _, stats0 = jax.eval_shape(sub_step, state, h)
-            zero = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats0)
-
-            def body(i, carry):
-                state, stats = sub_step(carry[0], gammas.fractions[i].astype(h.dtype) * h)
-                return state, jax.tree.map(jnp.maximum, carry[1], stats)
-
-            return jax.lax.fori_loop(0, gammas.count, body, (state, zero))
+            fraction_step = lambda s, i: sub_step(s, gammas.fractions[i].astype(h.dtype) * h)  # noqa: E731
+            return _repeat_keeping_worst(fraction_step, state, gammas.count)
         if len(gammas) == 1:
             return sub_step(state, gammas[0] * h)
         # A rolled loop over the composition's sub-steps: one copy of the step to compile.
@@ -128,15 +134,9 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), state)
     stats = jax.tree.map(lambda s: jnp.zeros((capacity,) + s.shape, s.dtype), stats0)
 
-    def step(_, carry):
-        state, worst = carry
-        state, s = one_step(state)
-        return state, jax.tree.map(jnp.maximum, worst, s)
-
     def node(k, carry):
         state, saved, stats = carry
-        zero = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats0)
-        state, worst = jax.lax.fori_loop(0, save_every, step, (state, zero))
+        state, worst = _repeat_keeping_worst(lambda s, _: one_step(s), state, save_every)
         put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k, 0)  # noqa: E731
         return state, jax.tree.map(put, saved, state), jax.tree.map(put, stats, worst)
 
