@@ -34,6 +34,12 @@ class StepStats(eqx.Module):
     residual: jax.Array
     result: jax.Array
 
+    @classmethod
+    def zeros(cls, dtype) -> "StepStats":
+        """No iterations, zero residual, ``SUCCESS``: the start of a running maximum. Built
+        directly: shape-evaluating a step for it would trace the whole step once more."""
+        return cls(jnp.zeros((), jnp.int32), jnp.zeros((), dtype), jnp.zeros((), jnp.int8))
+
 
 def _split(system, z):
     r = system.group.dim

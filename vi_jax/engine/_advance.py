@@ -20,7 +20,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._saved_nodes import SAVE_BLOCK, scan_saved_nodes
-from ..discrete import dep_step
+from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
 
 
@@ -57,14 +57,13 @@ def traced_composition(gammas) -> TracedComposition:
 
 def _repeat_keeping_worst(step, state, n):
     """``n`` (traced) applications of ``step(state, i) -> (state, stats)``; the stats are the
-    elementwise maximum over them, from zeros (``SUCCESS``, no iterations)."""
-    _, stats0 = jax.eval_shape(step, state, 0)
+    elementwise maximum over them, from :meth:`StepStats.zeros`."""
 
     def body(i, carry):
         state, stats = step(carry[0], i)
         return state, jax.tree.map(jnp.maximum, carry[1], stats)
 
-    return jax.lax.fori_loop(0, n, body, (state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), stats0)))
+    return jax.lax.fori_loop(0, n, body, (state, StepStats.zeros(state.z.dtype)))
 
 
 def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
@@ -130,9 +129,8 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     ``n_nodes`` repeat the initial state (valid data for the node diagnostics) with zero stats.
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
-    _, stats0 = jax.eval_shape(one_step, state)
     saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), state)
-    stats = jax.tree.map(lambda s: jnp.zeros((capacity,) + s.shape, s.dtype), stats0)
+    stats = jax.tree.map(lambda s: jnp.broadcast_to(s, (capacity,)), StepStats.zeros(state.z.dtype))
 
     def node(k, carry):
         state, saved, stats = carry
