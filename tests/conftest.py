@@ -1,9 +1,9 @@
 """Test-run configuration: float64, and two compile-time savings that leave every computed
 value's definition unchanged (the suite is compile-bound: most tests build a new program).
 
-* XLA:CPU's older elemental emitters (``--xla_cpu_use_fusion_emitters=false``) compile a
-  vehicle ``simulate`` in about 0.6× the time, at 0.93–1.12× the step cost
-  (``python benchmarks/compile_time.py``).
+* XLA:CPU's older elemental emitters (``--xla_cpu_use_fusion_emitters=false``) spend
+  0.51–0.78× the backend compile time, at 0.73–1.41× the step cost, within the run-to-run
+  spread (two runs of ``python benchmarks/compile_time.py``).
 * One persistent compilation cache per test run, shared by the xdist workers and the tests'
   subprocesses (a program that two tests or two workers build is compiled once); the run's
   controller creates it in the temporary directory and removes it at the end.
