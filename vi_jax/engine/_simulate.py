@@ -131,19 +131,20 @@ def simulate(
     rule, gammas = composition_coefficients(order)
     rtol = _default_rtol(dtype) if rtol is None else float(rtol)
     options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
-    # concrete runs: the trapezoid compositions (orders 2, 4, 6) as traced data, one program
-    loop_options = dict(options, gammas=gammas if rule == "left" else traced_composition(gammas))
     with full_precision():
         if not val.is_concrete((system, x0, h)):
             sol = _simulate_scan(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
-        elif progress:
-            with placement(device):
-                sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **loop_options)
         else:
             with placement(device):
-                count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-                sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **loop_options)
-                sol = _rows(sol, n_saved + 1)
+                # the trapezoid compositions (orders 2, 4, 6) as traced data: one program
+                if rule != "left":
+                    options["gammas"] = traced_composition(gammas)
+                if progress:
+                    sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **options)
+                else:
+                    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
+                    sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **options)
+                    sol = _rows(sol, n_saved + 1)
     if throw:
         sol = _check_failure(sol, save_every)
     warn_if_meaningless(sol.energy, "simulate")
