@@ -65,6 +65,8 @@ def test_sharded_ensemble_equals_single_device():
     # devices) cannot change a single bit.
     assert all(f["identical"] for k, f in report["batched-7"]["fields"].items() if k != "newton_residual_max")
     # jax.vmap of vj.simulate (a free rigid body: the generic path, any system): XLA may order a
-    # reduction differently for 2 members per device than for 8; equal to round-off.
-    assert all(f["max_rel"] <= 1e-13 for k, f in report["vmap-8"]["fields"].items() if k != "newton_residual_max")
+    # reduction differently for 2 members per device than for 8 (≲ a few ulps per step), and a
+    # difference grows at most linearly over 100 steps of this bounded motion: 8 ulps per step.
+    bound = 8 * 100 * 2.0**-52
+    assert all(f["max_rel"] <= bound for k, f in report["vmap-8"]["fields"].items() if k != "newton_residual_max")
     assert report["vmap-8"]["devices"] == 4  # a multiple of the devices stays sharded

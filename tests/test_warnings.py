@@ -65,8 +65,8 @@ def test_beam_time_march_warns_on_a_step_past_its_stability_limit():
     dt_stable = float(model.stable_time_step(ds))
     with warnings.catch_warnings():
         warnings.simplefilter("error", vj.AccuracyWarning)
-        vj.multisymplectic.time_march(model, g0, xi0=xi0, dt=0.5 * dt_stable, ds=ds, n_steps=50)
-    with pytest.warns(vj.AccuracyWarning):
+        vj.multisymplectic.time_march(model, g0, xi0=xi0, dt=0.5 * dt_stable, ds=ds, n_steps=20)
+    with pytest.warns(vj.AccuracyWarning):  # the same program (the step count is static; Δt is data)
         sol = vj.multisymplectic.time_march(model, g0, xi0=xi0, dt=1.2 * dt_stable, ds=ds, n_steps=20)
     # 20 % past the stable step the solves still converge (they fail from row ~30), but the energy
     # has grown by orders of magnitude: only the energy says the run is meaningless.
