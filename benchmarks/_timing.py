@@ -29,18 +29,25 @@ def write_json(path, payload):
     print(f"wrote {path}")
 
 
-def fast_loops_from_argv():
-    """``--fast-loops`` on the command line: call ``vi_jax.enable_fast_cpu_loops()`` (before any
-    JAX work) and return True."""
+def parse_args_with_fast_loops(parser=None):
+    """Parse the command line with ``parser`` (a bare one if None) and a ``--fast-loops`` flag;
+    with the flag, call ``vi_jax.enable_fast_cpu_loops()`` before any JAX work. Returns the
+    parsed arguments (``.fast_loops``: whether the loop option is on)."""
     import argparse
 
     import vi_jax
 
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser() if parser is None else parser
     parser.add_argument("--fast-loops", action="store_true", help="vi_jax.enable_fast_cpu_loops() first")
-    if parser.parse_args().fast_loops:
-        return vi_jax.enable_fast_cpu_loops()
-    return False
+    args = parser.parse_args()
+    if args.fast_loops:
+        args.fast_loops = vi_jax.enable_fast_cpu_loops()
+    return args
+
+
+def fast_loops_from_argv():
+    """``--fast-loops`` as the only option: see :func:`parse_args_with_fast_loops`."""
+    return parse_args_with_fast_loops().fast_loops
 
 
 def write_config_json(name, fast_loops, **payload):

@@ -17,27 +17,22 @@ disturbs less than single timings.
 """
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
+
+from _timing import parse_args_with_fast_loops, time_compiled, write_json
 
 
 def parse():
     parser = argparse.ArgumentParser()
-    parser.add_argument("--fast-loops", action="store_true")
     parser.add_argument("--T", type=float, default=50.0)
     parser.add_argument("--cost-steps", type=int, default=10_000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=None)
-    return parser.parse_args()
+    return parse_args_with_fast_loops(parser)
 
 
 ARGS = parse()
-if ARGS.fast_loops:
-    import vi_jax
-
-    vi_jax.enable_fast_cpu_loops()
 
 import jax  # noqa: E402
 
@@ -49,8 +44,6 @@ from vi_jax import continuous  # noqa: E402
 from vi_jax.discrete import _splitting as S  # noqa: E402
 from vi_jax.discrete._splitting_pieces import separable_parts  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _timing import time_compiled, write_json  # noqa: E402
 
 STEP_COUNTS = {  # per order: T/h, spanning errors ~1e-2 … 1e-11
     2: (400, 800, 1600, 3200, 6400),

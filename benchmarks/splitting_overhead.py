@@ -14,15 +14,13 @@ import argparse
 import sys
 import time
 
-ARGS = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-ARGS.add_argument("--fast-loops", action="store_true", help="vj.enable_fast_cpu_loops() first")
-ARGS.add_argument("--repeats", type=int, default=300)
-ARGS = ARGS.parse_args()
+from _timing import parse_args_with_fast_loops
+
+PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+PARSER.add_argument("--repeats", type=int, default=300)
+ARGS = parse_args_with_fast_loops(PARSER)
 
 import vi_jax as vj  # noqa: E402
-
-if ARGS.fast_loops:
-    vj.enable_fast_cpu_loops()
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
