@@ -139,6 +139,7 @@ def ensemble(
     rtol=None,
     max_newton_iterations: int = 20,
     checkpoint: bool = False,
+    progress: bool = False,
 ) -> Solution:
     """``vj.simulate`` for every member of an ensemble; fields get a leading member axis.
 
@@ -150,7 +151,8 @@ def ensemble(
     are ``vj.simulate``'s (``scheme="splitting"``: ``jax.vmap`` of the explicit splitting);
     ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
-    that counts them.
+    that counts them. ``progress=True`` (outside ``jit``) runs the members in equal groups of
+    at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
     """
     val.check_choice("method", method, METHODS)
     if scheme == "splitting" and method == "batched":
@@ -206,11 +208,16 @@ def ensemble(
     )
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
-    with full_precision():
+    def run(dynamic, n_members):
         if mesh is None:
-            sol = _run(dynamic, static, axes, h, n_members=n_members, **options)
+            return _run(dynamic, static, axes, h, n_members=n_members, **options)
+        return _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
+
+    with full_precision():
+        if progress and val.is_concrete((dynamic, h)):
+            sol = _run_in_groups(run, dynamic, axes, n_members, n_steps)
         else:
-            sol = _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
+            sol = run(dynamic, n_members)
     sol = _check_members(sol) if throw else sol
     warn_if_meaningless(sol.energy, "ensemble", members=True)
     return sol
@@ -261,6 +268,34 @@ def _sharded(dynamic, h, *, static, axes, mesh, in_specs, n_local, **options):
 
     spec = PartitionSpec(mesh.axis_names)
     return jax.shard_map(local, mesh=mesh, in_specs=(in_specs, PartitionSpec()), out_specs=spec, check_vma=False)(dynamic, h)
+
+
+PROGRESS_GROUP = 64  # members per call at least: the vectorised paths lose throughput on fewer
+
+
+def _run_in_groups(run, dynamic, axes, n_members, n_steps):
+    """``run`` over equal groups of members (the last one padded with copies of its last
+    member: one program), with a tqdm bar counting member-steps; the groups' results joined."""
+    from tqdm.auto import tqdm
+
+    size = -(-n_members // max(1, min(100, n_members // PROGRESS_GROUP)))
+    is_none = lambda x: x is None  # noqa: E731
+
+    def group(start):
+        def take(ax, x):
+            if ax is None or x is None:
+                return x
+            x = np.asarray(x)[start : start + size]  # sliced on the host: no program per slice
+            return jnp.asarray(np.concatenate([x, np.repeat(x[-1:], size - x.shape[0], axis=0)]))
+
+        return jax.tree.map(take, axes, dynamic, is_leaf=is_none)
+
+    parts = []
+    with tqdm(total=n_members * n_steps, unit="member-step", unit_scale=True, desc="ensemble") as bar:
+        for start in range(0, n_members, size):
+            parts.append(jax.tree.map(np.asarray, run(group(start), size)))
+            bar.update(min(size, n_members - start) * n_steps)
+    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)[:n_members]), *parts)
 
 
 def _check_members(sol: Solution) -> Solution:
