@@ -18,6 +18,7 @@ jax.config.update("jax_enable_x64", True)
 
 import vi_jax as vj  # noqa: E402
 from vi_jax.discrete import composition_coefficients  # noqa: E402
+from vi_jax import _saved_nodes  # noqa: E402
 from vi_jax.engine import _simulate  # noqa: E402
 from vi_jax.engine._advance import traced_composition  # noqa: E402
 from vi_jax.lie import Cayley  # noqa: E402
@@ -31,7 +32,7 @@ def run(system, x0, order, traced):
     rule, gammas = composition_coefficients(order)
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
     return _simulate._simulate_loop(
-        system, x0, jnp.asarray(0.01), count(N_STEPS), count(1), capacity=_simulate._capacity(N_STEPS), tau=Cayley(),
+        system, x0, jnp.asarray(0.01), count(N_STEPS), count(1), capacity=_saved_nodes.saved_capacity(N_STEPS), tau=Cayley(),
         rule=rule, gammas=traced_composition(gammas) if traced else gammas, rtol=_simulate._default_rtol(jnp.float64), max_iter=20,
     ).g
 

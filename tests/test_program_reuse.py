@@ -1,10 +1,12 @@
 """``vj.simulate`` on concrete inputs compiles one program per scene and scheme for every run of
 up to 1024 saved nodes: the step counts are traced integers, the saved-node buffer has a
 minimum capacity (a new program costs seconds of compilation, ``python benchmarks/capacity.py``);
-orders 2, 4 and 6 share one program (their sub-step fractions are traced)."""
+orders 2, 4 and 6 share one program (their sub-step fractions are traced). The beam's time
+march likewise."""
 
 import logging
 
+import equinox as eqx
 import jax
 import numpy as np
 
@@ -34,3 +36,38 @@ def test_orders_2_4_and_6_share_one_program(caplog):
     assert not any(np.array_equal(a, b) for a, b in zip(finals, finals[1:]))  # different schemes ran
     compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_simulate_loop)")]
     assert compiled == []
+
+
+def test_beam_time_marches_of_every_length_share_one_program(caplog):
+    """The time march on concrete inputs (traced step counts, ``while`` loops) equals the
+    traced march (static counts, ``lax.scan``: what ``jit``, ``vmap`` and ``grad`` run), and
+    another length or saving interval compiles nothing."""
+    model = vj.models.GeometricallyExactBeam()
+    ds = float(model.length) / 4
+    dt = 0.5 * float(model.stable_time_step(ds))
+    g0, xi0 = model.initial_state(4)
+
+    def march(g0, n_steps, save_every):
+        return vj.multisymplectic.time_march(model, g0, xi0=xi0, dt=dt, ds=ds, n_steps=n_steps, save_every=save_every)
+
+    loop = march(g0, 12, 3)
+    scan = eqx.filter_jit(march)(g0, 12, 3)
+    with jax.log_compiles(), caplog.at_level(logging.DEBUG, logger="jax"):
+        every_row = march(g0, 40, 1)
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_time_march_loop)")]
+    assert compiled == []
+    assert every_row.g.shape[0] == 41 and loop.g.shape[0] == 5
+    # The same operations in different programs (or two copies of a row in one): XLA may contract
+    # or order a few of them differently, ≲ a few ulps per step, growing at most linearly here.
+    bound = 8 * 40 * np.finfo(np.float64).eps
+    for other, rows in ((scan, slice(None)), (every_row, slice(0, 13, 3))):
+        np.testing.assert_array_equal(np.asarray(other.t)[rows], loop.t)
+        np.testing.assert_array_equal(other.s, loop.s)
+        for name in ("g", "xi", "eta", "mu", "p", "momentum", "energy"):
+            a, b = np.asarray(getattr(other, name))[rows], np.asarray(getattr(loop, name))
+            assert np.max(np.abs(a - b)) <= bound * np.max(np.abs(b)), name
+    # Newton statistics of a saved row: its own solve's and the worst of the unsaved steps after it
+    np.testing.assert_array_equal(scan.newton_iterations, loop.newton_iterations)
+    each = np.asarray(every_row.newton_iterations)
+    expected = [np.maximum(each[3 * i], each[3 * i + 1 : 3 * i + 3].max()) for i in range(4)] + [each[12]]
+    np.testing.assert_array_equal(loop.newton_iterations, np.stack(expected))

@@ -1,7 +1,9 @@
-"""Scanning a trajectory's saved nodes in blocks, for every scheme."""
+"""A trajectory's saved nodes, for every scheme: scanned in blocks (under transformations), or
+written into a buffer of fixed capacity by a loop with traced counts (concrete runs)."""
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 SAVE_BLOCK = 128  # saved nodes per inner scan: one long output buffer costs XLA:CPU more than a step
 
@@ -29,3 +31,24 @@ def scan_saved_nodes(node, state, length, checkpoint=False):
         state, out = jax.lax.scan(node, state, None, length=rest)
         pieces.append(out)
     return state, jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
+
+
+MIN_CAPACITY = 1024
+
+
+def saved_capacity(n_saved: int) -> int:
+    """Saved-node buffer size (one program per capacity): at least ``MIN_CAPACITY``, so every
+    run of up to 1024 saved nodes shares one program (a new capacity costs a full compile,
+    seconds; the unused rows change a short call's ~10 ms by less than its run-to-run spread,
+    ``python benchmarks/capacity.py``), then the next power of two."""
+    return max(MIN_CAPACITY, 1 << max(n_saved - 1, 0).bit_length())
+
+
+def first_rows(tree, n):
+    """The first ``n`` rows of every leaf, sliced on the host: an eager device slice would
+    compile a small program for every new ``n``. Each row keeps its device and its
+    committedness: a committed array would make a later ``jit`` that mixes it with fresh inputs
+    compile anew. An uncommitted row goes to the default device (inside
+    ``vi_jax.engine._placement.placement``: the run's)."""
+    place = lambda x: next(iter(x.devices())) if x.committed else None  # noqa: E731
+    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], place(x)), tree)

@@ -17,6 +17,7 @@ from .._accuracy import warn_if_meaningless
 from ._advance import advance_loop, advance_scan, traced_composition
 from ._placement import placement
 from .._precision import full_precision
+from .._saved_nodes import first_rows, saved_capacity
 from ._simulate_splitting import simulate_splitting
 from ._solution import Solution, node_invariants, validate_inputs
 
@@ -143,32 +144,12 @@ def simulate(
                     sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **options)
                 else:
                     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-                    sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=_capacity(n_saved), **options)
-                    sol = _rows(sol, n_saved + 1)
+                    sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
+                    sol = first_rows(sol, n_saved + 1)
     if throw:
         sol = _check_failure(sol, save_every)
     warn_if_meaningless(sol.energy, "simulate")
     return sol
-
-
-MIN_CAPACITY = 1024
-
-
-def _capacity(n_saved: int) -> int:
-    """Saved-node buffer size (one program per capacity): at least ``MIN_CAPACITY``, so every
-    run of up to 1024 saved nodes shares one program (a new capacity costs a full compile,
-    seconds; the unused rows change a short call's ~10 ms by less than its run-to-run spread,
-    ``python benchmarks/capacity.py``), then the next power of two."""
-    return max(MIN_CAPACITY, 1 << max(n_saved - 1, 0).bit_length())
-
-
-def _rows(sol, n):
-    """The first ``n`` rows, sliced on the host: an eager device slice would compile a small
-    program for every new ``n``. Each row keeps its device and its committedness: a committed
-    array would make a later ``jit`` that mixes it with fresh inputs compile anew. An uncommitted
-    row goes to the default device, which inside :func:`placement` is the run's."""
-    place = lambda x: next(iter(x.devices())) if x.committed else None  # noqa: E731
-    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], place(x)), sol)
 
 
 def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
@@ -222,7 +203,7 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
     state0 = state = _initial_jit(system, x0)
     n_chunks = min(n_saved, 100)
     sizes = [n_saved // n_chunks + (i < n_saved % n_chunks) for i in range(n_chunks)]
-    capacity = _capacity(sizes[0])
+    capacity = saved_capacity(sizes[0])
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
     saved_parts, stats_parts = [], []
     with tqdm(total=n_saved * save_every, unit="step", desc="simulate") as bar:
@@ -234,10 +215,10 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
             stats_parts.append(jax.tree.map(lambda x: x[:size], stats))
             bar.update(size * save_every)
     # Pad to the power-of-two capacity so the node diagnostics compile once per capacity too.
-    total = _capacity(n_saved)
+    total = saved_capacity(n_saved)
     cat = lambda *xs: jnp.concatenate(xs + (jnp.broadcast_to(xs[-1][-1:], (total - n_saved,) + xs[-1].shape[1:]),))  # noqa: E731
     saved, stats = jax.tree.map(cat, *saved_parts), jax.tree.map(cat, *stats_parts)
-    return _rows(_assemble_jit(system, state0, saved, stats, h, count(save_every), rtol, max_iter), n_saved + 1)
+    return first_rows(_assemble_jit(system, state0, saved, stats, h, count(save_every), rtol, max_iter), n_saved + 1)
 
 
 def _check_failure(sol: Solution, save_every: int) -> Solution:

@@ -240,6 +240,33 @@ def _advance(engine: Engine, carry: Carry, n_saved: int, save_every: int, n_tota
 _advance_jit = eqx.filter_jit(_advance)
 
 
+def advance_loop(engine: Engine, carry: Carry, n_rows, save_every, capacity: int) -> Rows:
+    """``_advance`` with traced counts (``n_rows`` ≤ ``capacity`` saved rows, ``save_every``),
+    for concrete runs (a ``while`` loop: not reverse-differentiable): one program serves every
+    length, and one copy of the row solve is compiled. Every step rewrites the current saved
+    row: with its own output when it is saved, else with the worst Newton statistics so far.
+    The buffer's rows past ``n_rows`` hold the starting row's configuration, momentum and
+    velocities, zeros elsewhere (valid data for the diagnostics); the last saved row's
+    successors are not computed."""
+    proto = jax.eval_shape(lambda c: engine.row(c)[1], carry)
+    fill = eqx.tree_at(
+        lambda r: (r.g, r.p, r.v), jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), proto), (carry.g, carry.p, carry.v)
+    )
+    rows = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), fill)
+    stats = lambda r: (r.iterations, r.residual, r.result)  # noqa: E731
+
+    def step(k, state):
+        carry, rows = state
+        carry, out = engine.row(carry)
+        i, saved = k // save_every, k % save_every == 0
+        here = jax.tree.map(lambda buf: jax.lax.dynamic_index_in_dim(buf, i, 0, keepdims=False), rows)
+        worst = tuple(jnp.maximum(x, jnp.max(y)) for x, y in zip(stats(here), stats(out)))
+        new = jax.tree.map(lambda a, b: jnp.where(saved, a, b), out, eqx.tree_at(stats, here, worst))
+        return carry, jax.tree.map(lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, i, 0), rows, new)
+
+    return jax.lax.fori_loop(0, (n_rows - 1) * save_every + 1, step, (carry, rows))[1]
+
+
 def run(engine: Engine, carry: Carry, n_steps: int, save_every: int, progress: bool = False) -> Rows:
     """Rows 0, s, 2s, …, n_steps (s = save_every) from the carry at row 0. Each row's velocities
     are solved, so the last row costs one more solve (and s − 1 uncounted steps) whose

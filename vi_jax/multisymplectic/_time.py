@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
+from .._saved_nodes import first_rows, saved_capacity
 from ..lie import difference_map
 from . import _march
 from ._lagrangian import AbstractCovariantSystem
@@ -130,7 +131,10 @@ def time_march(
     the discrete Legendre transform. ``boundary``: "free-free" (zero traction at both ends,
     eq. 83) or "clamped-free" (node 0 held at g0[0]). ``force(t, s, g)``: body wrench density
     (torque, force) per unit length, F̄¹ = ΔsΔt f (eq. 39). Each step is one vmapped dim-r Newton
-    solve per node; jittable, vmappable and differentiable (implicit-function gradients).
+    solve per node; jittable, vmappable and differentiable (implicit-function gradients). On
+    concrete inputs one compiled program serves every ``n_steps`` and ``save_every`` with the
+    same saved-row capacity (traced counts, as in ``vj.simulate``); under a transformation the
+    loops have static lengths.
     ``throw=True`` raises :class:`MarchFailure` when a solve fails; ``throw=False`` records it in
     ``result``. Without ``force`` the march is conservative: an energy error that says the run is
     meaningless warns (:class:`vi_jax.AccuracyWarning`). ``progress=True`` shows a progress bar (outside ``jit``).
@@ -153,6 +157,11 @@ def time_march(
             engine, carry = _start_jit(system, *args, **options)
             rows = _march.run(engine, carry, n_steps, save_every, progress=True)
             sol = _assemble_jit(engine, rows, save_every)
+        elif val.is_concrete((system, args)):  # traced counts: one program for every length
+            n_rows = n_steps // save_every + 1
+            count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+            sol = _time_march_loop(system, *args, count(n_rows), count(save_every), capacity=saved_capacity(n_rows), **options)
+            sol = eqx.tree_at(lambda m: m.s, first_rows(sol, n_rows), sol.s)
         else:
             sol = _time_march_jit(system, *args, n_steps=n_steps, save_every=save_every, **options)
 
@@ -213,6 +222,12 @@ def _assemble(engine, rows, save_every):
 
 _start_jit = eqx.filter_jit(_start)
 _assemble_jit = eqx.filter_jit(_assemble)
+
+
+@eqx.filter_jit
+def _time_march_loop(system, g0, xi0, g1, dt, ds, n_rows, save_every, *, capacity, **options):
+    engine, carry = _start(system, g0, xi0, g1, dt, ds, **options)
+    return _assemble(engine, _march.advance_loop(engine, carry, n_rows, save_every, capacity), save_every)
 
 
 @eqx.filter_jit
