@@ -208,6 +208,7 @@ def ensemble(
     )
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
+
     def run(dynamic, n_members):
         if mesh is None:
             return _run(dynamic, static, axes, h, n_members=n_members, **options)
@@ -238,6 +239,13 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
     return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
 
 
+def _pad_members(x, size):
+    """``x`` (members first) with copies of its last member appended up to ``size`` members."""
+    if x.shape[0] == size:
+        return x
+    return jnp.concatenate([x, jnp.repeat(x[-1:], size - x.shape[0], axis=0)])
+
+
 def _run_sharded(dynamic, static, axes, h, mesh, n_members, options):
     """Pad the members to a multiple of the devices, split them over ``mesh`` and run each
     share independently (``jax.shard_map``: no communication between devices)."""
@@ -247,9 +255,7 @@ def _run_sharded(dynamic, static, axes, h, mesh, n_members, options):
     is_none = lambda x: x is None  # noqa: E731
 
     def pad(ax, x):
-        if ax is None or x is None or padded == n_members:
-            return x
-        return jnp.concatenate([x, jnp.repeat(x[-1:], padded - n_members, axis=0)])
+        return x if ax is None or x is None else _pad_members(x, padded)
 
     dynamic = jax.tree.map(pad, axes, dynamic, is_leaf=is_none)
     in_specs = jax.tree.map(lambda ax, x: None if x is None else (PartitionSpec() if ax is None else spec), axes, dynamic, is_leaf=is_none)
@@ -285,8 +291,7 @@ def _run_in_groups(run, dynamic, axes, n_members, n_steps):
         def take(ax, x):
             if ax is None or x is None:
                 return x
-            x = np.asarray(x)[start : start + size]  # sliced on the host: no program per slice
-            return jnp.asarray(np.concatenate([x, np.repeat(x[-1:], size - x.shape[0], axis=0)]))
+            return _pad_members(jnp.asarray(np.asarray(x)[start : start + size]), size)  # sliced on the host
 
         return jax.tree.map(take, axes, dynamic, is_leaf=is_none)
 
