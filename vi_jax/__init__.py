@@ -29,10 +29,14 @@ from .fitting import (
     FitResult as FitResult,
     Observations as Observations,
     Parametrisation as Parametrisation,
+    Telemetry as Telemetry,
     fit as fit,
     identifiability as identifiability,
     levenberg_marquardt as levenberg_marquardt,
+    read_telemetry as read_telemetry,
     synthesize as synthesize,
+    synthesize_telemetry as synthesize_telemetry,
+    write_telemetry as write_telemetry,
 )
 
 __version__ = "0.1.0"

@@ -3,7 +3,7 @@
   vi-jax simulate underwater --tau cayley --h 0.01 --steps 50000 --out DIR
   vi-jax simulate beam [--scenario free|clamped|paper] --out DIR
   vi-jax compare [--quick] --out DIR
-  vi-jax fit [--data FILE.npz] --out DIR
+  vi-jax fit [--data FILE.csv|FILE.npz] --out DIR
 
 ``simulate underwater`` writes ``DIR/trajectory.npz`` (t, R, q, omega, nu, energy,
 kelvin_noether; leading axis = time) and PNG plots. Bad input is reported in one line with a

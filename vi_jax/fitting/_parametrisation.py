@@ -3,6 +3,7 @@ scalars and diagonals, Cholesky factors LLᵀ (diagonal exp(θ)) for full matric
 for the centre of buoyancy (see ``vi_jax.fitting._fit``)."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -112,3 +113,24 @@ class Parametrisation(eqx.Module):
             else:
                 parts.append(value[np.tril_indices(3)])
         return jnp.concatenate(parts)
+
+
+class FreeParameters(eqx.Module):
+    """The vehicle as a function of its free coordinates θ_free; the others stay at ``theta``'s."""
+
+    param: Parametrisation
+    theta: jax.Array
+    cols: tuple = eqx.field(static=True)
+
+    def __init__(self, param, model, free):
+        self.param, self.theta = param, param.encode(model)
+        self.cols = tuple(int(i) for i in param.indices(free))
+
+    def __call__(self, theta_free):
+        return self.param.decode(self.theta.at[np.asarray(self.cols)].set(theta_free))
+
+    def initial(self):
+        return self.theta[np.asarray(self.cols)]
+
+    def labels(self):
+        return [self.param.labels()[i] for i in self.cols]

@@ -1,4 +1,5 @@
-"""Figures of a parameter fit: the loss per iteration with the horizon stages marked."""
+"""Figures of a parameter fit: the loss per iteration with the stages marked, the fitted model
+against the telemetry per channel, and the whitened residuals."""
 
 import numpy as np
 
@@ -19,3 +20,72 @@ def plot_loss(result, path):
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+_COMPONENTS = {"position": ("x", "y", "z"), "attitude": ("roll", "pitch", "yaw"), "rates": ("p", "q", "r"), "velocity": ("u", "v", "w")}
+_UNITS = {"position": "m", "attitude": "rad", "rates": "rad/s", "velocity": "m/s"}
+
+
+def _zyx(R):
+    """Roll, pitch, yaw (ZYX) of rotation matrices (m, 3, 3)."""
+    return np.stack([np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(np.clip(R[:, 2, 0], -1, 1)), np.arctan2(R[:, 1, 0], R[:, 0, 0])], -1)
+
+
+def _observed_and_fitted(result, telemetry, channel):
+    obs, fitted = np.asarray(telemetry.values[channel]), result.prediction[channel]
+    if channel == "attitude":
+        obs, fitted = _zyx(obs), _zyx(fitted)
+    return obs, fitted, np.asarray(telemetry.mask[channel]) > 0
+
+
+def _per_channel_figure(telemetry, path, title, height, draw):
+    """One panel per given channel, ``draw(ax, channel, t)`` filling each, saved to ``path``."""
+    from matplotlib.figure import Figure
+
+    channels = telemetry.channels
+    fig = Figure(figsize=(8, height * len(channels)))
+    axes = np.atleast_1d(fig.subplots(len(channels), 1, sharex=True))
+    for ax, c in zip(axes, channels):
+        draw(ax, c, np.asarray(telemetry.t))
+        ax.legend(fontsize=6, ncol=3, loc="upper right")
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def plot_channels(result, telemetry, path):
+    """Fitted model (lines, at the sample times) against the observed samples (dots), one panel
+    per observed channel; attitudes as ZYX angles."""
+
+    def draw(ax, c, t):
+        obs, fitted, mask = _observed_and_fitted(result, telemetry, c)
+        for k, name in enumerate(_COMPONENTS[c]):
+            if mask[:, k].any():
+                (line,) = ax.plot(t, fitted[:, k], lw=1.0, label=f"{name} fitted")
+                ax.plot(t[mask[:, k]], obs[mask[:, k], k], ".", ms=3, color=line.get_color(), label=f"{name} observed")
+        ax.set_ylabel(f"{c} [{_UNITS[c]}]")
+
+    _per_channel_figure(telemetry, path, "Fitted model against the telemetry", 2.4, draw)
+
+
+def plot_residuals(result, telemetry, path):
+    """Residuals in units of each channel's σ against time (attitude: the rotation vector of
+    R_obsᵀR_fit), with ±1σ and ±3σ bands: an honest noise model leaves them ~N(0, 1)."""
+
+    def draw(ax, c, t):
+        obs, fitted, mask = np.asarray(telemetry.values[c]), result.prediction[c], np.asarray(telemetry.mask[c]) > 0
+        if c == "attitude":
+            A = np.einsum("nji,njk->nik", obs, fitted)
+            diff = 0.5 * np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0], A[:, 1, 0] - A[:, 0, 1]], -1)
+        else:
+            diff = fitted - obs
+        for k, name in enumerate(("x", "y", "z") if c == "attitude" else _COMPONENTS[c]):
+            if mask[:, k].any():
+                ax.plot(t[mask[:, k]], diff[mask[:, k], k] / telemetry.sigma[c], ".", ms=3, label=name)
+        for band, alpha in ((1, 0.15), (3, 0.07)):
+            ax.axhspan(-band, band, color="0.5", alpha=alpha, lw=0)
+        ax.set_ylabel(f"{c} / σ")
+
+    _per_channel_figure(telemetry, path, "Whitened residuals", 2.0, draw)

@@ -1,0 +1,50 @@
+"""Wall time of one ``vj.fit`` of the 9 default free parameters (and the initial state) to 200
+irregularly spaced samples of positions and attitudes over 60 s (σ = 1 cm, 0.01 rad), from a
+guess 20–30 % off, compile included: what a user waits for.
+
+    python benchmarks/fit_time.py [--repeats 3] [--segments N]
+"""
+
+import argparse
+import statistics
+import time
+
+import jax
+import numpy as np
+
+from _timing import write_json
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=3, help="fits, each in this process (the first compiles)")
+    parser.add_argument("--segments", type=int, default=None)
+    parser.add_argument("--out", default="benchmarks/results/fit_time.json")
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", True)
+    import vi_jax as vj
+    from vi_jax.fitting import Parametrisation
+    from vi_jax.fitting._fit import DEFAULT_FREE
+
+    truth = vj.models.UnderwaterVehicle()
+    x0 = truth.initial_state()
+    rng = np.random.default_rng(0)
+    t = np.concatenate([[0.0], np.sort(rng.uniform(0.0, 60.0, 199))])
+    data = vj.synthesize_telemetry(truth, x0, t, sigma={"position": 0.01, "attitude": 0.01}, h=0.05, order=1, seed=2)
+    guess = vj.models.UnderwaterVehicle(added_mass=(80.0, 55.0, 90.0), inertia=(4.5, 6.5, 5.0), buoyancy_offset=(0.003, -0.004, -0.012))
+    param = Parametrisation(truth)
+    true = np.asarray(param.values(truth))[param.indices(DEFAULT_FREE)]
+    rows = []
+    for k in range(args.repeats):
+        start = time.perf_counter()
+        result = vj.fit(data, None, guess, h=0.05, segments=args.segments)
+        seconds = time.perf_counter() - start
+        z = (result.values - true) / result.std
+        rows.append({"seconds": seconds, "iterations": result.iterations, "max_abs_z": float(np.max(np.abs(z))), "reduced_chi2": result.reduced_chi2})
+        print(f"fit {k + 1}: {seconds:.1f} s, {result.iterations} iterations, max |z| = {rows[-1]['max_abs_z']:.2f}, reduced χ² = {result.reduced_chi2:.3f}")
+    write_json(args.out, {"samples": int(t.size), "parameters": len(true), "segments": args.segments, "first_seconds": rows[0]["seconds"],
+                          "median_seconds": statistics.median(r["seconds"] for r in rows), "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
