@@ -33,8 +33,10 @@ def _zyx(R):
 
 def _observed_and_fitted(result, telemetry, channel):
     obs, fitted = np.asarray(telemetry.values[channel]), result.prediction[channel]
-    if channel == "attitude":
-        obs, fitted = _zyx(obs), _zyx(fitted)
+    if channel == "attitude":  # angles continued past ±π along the fitted motion
+        obs, wrapped = _zyx(obs), _zyx(fitted)
+        fitted = np.unwrap(wrapped, axis=0)
+        obs = obs + 2 * np.pi * np.round((fitted - obs) / (2 * np.pi))
     return obs, fitted, np.asarray(telemetry.mask[channel]) > 0
 
 
@@ -57,7 +59,7 @@ def _per_channel_figure(telemetry, path, title, height, draw):
 
 def plot_channels(result, telemetry, path):
     """Fitted model (lines, at the sample times) against the observed samples (dots), one panel
-    per observed channel; attitudes as ZYX angles."""
+    per observed channel; attitudes as ZYX angles, continued past ±π."""
 
     def draw(ax, c, t):
         obs, fitted, mask = _observed_and_fitted(result, telemetry, c)
