@@ -64,22 +64,20 @@ def _readable(v, labels):
     return {labels[i]: round(float(v[i]), 4) for i in np.argsort(-np.abs(v)) if abs(v[i]) > 1e-4}
 
 
-def observed_rows(mask, m, continuity_rows=0, extra=()):
+def observed_rows(mask, m, extra=()):
     """Rows of the residual vector (see ``_shooting.observation_residuals``) of the components
-    that ``mask`` (channel → (m, 3)) observes, every component of the channels ``extra``, and
-    the ``continuity_rows`` after the observations."""
+    that ``mask`` (channel → (m, 3)) observes and every component of the channels ``extra``."""
     out = []
     for i, c in enumerate(CHANNELS):
         keep = np.ones((m, 3), bool) if c in extra else np.asarray(mask[c]) > 0 if c in mask else np.zeros((m, 3), bool)
         out.append(i * 3 * m + np.flatnonzero(keep.ravel()))
-    out.append(4 * 3 * m + np.arange(continuity_rows))
     return np.concatenate(out)
 
 
 POORLY_DETERMINED = 1.0  # σ in θ: a factor e for the positive parameters, 1 cm for the offset
 
 
-def channel_report(J, mask, labels, z_labels, rtol, continuity_rows=0):
+def channel_report(J, mask, labels, z_labels, rtol):
     """From the Jacobian ``J`` of the residuals of every channel at every sample (columns: the
     free parameters ``labels`` in θ, then states): which unknowns the components in ``mask``
     leave undetermined — exactly (a null direction of J) or in practice (σ in θ above
@@ -88,7 +86,7 @@ def channel_report(J, mask, labels, z_labels, rtol, continuity_rows=0):
     m = next(iter(mask.values())).shape[0]
 
     def undetermined(extra=()):
-        rows = observed_rows(mask, m, continuity_rows, extra)
+        rows = observed_rows(mask, m, extra)
         report, _, std = _fisher(J[rows], z_labels, np.eye(len(z_labels)), rtol)
         poor = [k for k, s in zip(z_labels, std) if np.isfinite(s) and s > POORLY_DETERMINED and k in labels]
         return report, poor, std

@@ -12,9 +12,6 @@ from ..engine import simulate
 from ..lie import SO3
 
 
-OBSERVED = ("position", "attitude")
-
-
 class Observations(eqx.Module):
     """Positions ``q`` (n+1, 3) [m] and attitudes ``R`` (n+1, 3, 3) sampled every
     ``save_every`` steps of size ``h`` from t = 0 (row 0: the known initial state), with noise

@@ -3,6 +3,8 @@ against the telemetry per channel, and the whitened residuals."""
 
 import numpy as np
 
+from ..fitting._telemetry import UNITS
+
 
 def plot_loss(result, path):
     from matplotlib.figure import Figure  # pyplot-free: no backend is selected or changed
@@ -23,7 +25,6 @@ def plot_loss(result, path):
 
 
 _COMPONENTS = {"position": ("x", "y", "z"), "attitude": ("roll", "pitch", "yaw"), "rates": ("p", "q", "r"), "velocity": ("u", "v", "w")}
-_UNITS = {"position": "m", "attitude": "rad", "rates": "rad/s", "velocity": "m/s"}
 
 
 def _zyx(R):
@@ -67,7 +68,7 @@ def plot_channels(result, telemetry, path):
             if mask[:, k].any():
                 (line,) = ax.plot(t, fitted[:, k], lw=1.0, label=f"{name} fitted")
                 ax.plot(t[mask[:, k]], obs[mask[:, k], k], ".", ms=3, color=line.get_color(), label=f"{name} observed")
-        ax.set_ylabel(f"{c} [{_UNITS[c]}]")
+        ax.set_ylabel(f"{c} [{UNITS[c]}]")
 
     _per_channel_figure(telemetry, path, "Fitted model against the telemetry", 2.4, draw)
 
