@@ -181,11 +181,12 @@ def _least_squares(problem, z, optimizer, lm, max_steps, tol, n, history, bar, l
         r, J, ok, value = evaluate(z)
         if not bool(ok):
             raise NewtonFailure("fit: the simulation fails at the current parameters; try a closer guess")
-        grad = J.T @ r / n
-        if float(value) == 0.0 or _gauss_newton_decrease(J, r) <= tol * 2 * n * float(value):
+        A, g = J.T @ J, J.T @ r  # the normal equations, shared by the stopping test and the step
+        if float(value) == 0.0 or _gauss_newton_decrease(A, g) <= tol * 2 * n * float(value):
             return z, True
+        extra = {"normal": A} if lm else {}
         updates, state = optimizer.update(
-            grad, state, z, residuals=r, jacobian=J, value_fn=value_fn, value=value, grad=grad
+            g / n, state, z, residuals=r, jacobian=J, value_fn=value_fn, value=value, grad=g / n, **extra
         )
         z = optax.apply_updates(z, updates)
         history.append(float(value))
@@ -197,11 +198,9 @@ def _least_squares(problem, z, optimizer, lm, max_steps, tol, n, history, bar, l
     return z, False
 
 
-def _gauss_newton_decrease(J, r):
-    """The decrease of Σr² that a full Gauss–Newton step predicts, rᵀJ(JᵀJ)⁺Jᵀr: the squared
-    length, in units of σ, of the move to the linearised minimum."""
-    g = J.T @ r
-    A = J.T @ J
+def _gauss_newton_decrease(A, g):
+    """The decrease of Σr² that a full Gauss–Newton step predicts, gᵀA⁺g with A = JᵀJ and
+    g = Jᵀr: the squared length, in units of σ, of the move to the linearised minimum."""
     step = jnp.linalg.solve(A + 1e-14 * jnp.max(jnp.diag(A)) * jnp.eye(A.shape[0]), g)
     return float(g @ step)
 
@@ -330,7 +329,7 @@ def fit(
     cov, std = cov[:n_free, :n_free], std[:n_free]
     # What each channel would add: the Jacobian of every channel at every sample (residuals
     # against the model itself, so the attitude rows are linearised at the fit).
-    everything = ({**prediction}, {c: jnp.ones_like(m) for c, m in samples[1].items()}, samples[2])
+    everything = (prediction, {c: jnp.ones_like(m) for c, m in samples[1].items()}, samples[2])
     _, J_all, _, _ = eqx.tree_at(lambda p: p.samples, problem, everything).evaluate(z)
     report = {**channel_report(np.asarray(J_all), {c: telemetry.mask[c] for c in telemetry.channels}, labels, z_labels, rtol), "rank": report["rank"]}
     scale = np.sqrt(np.diag(cov))

@@ -3,6 +3,7 @@ least-squares fit to the ``WINDOW`` nearest samples of each observed component g
 and rate; attitudes are fitted in the rotation-vector chart at the nearest sample. What the data
 do not show comes from a fallback (a simulation of the first-guess model)."""
 
+import jax
 import numpy as np
 
 from ..lie._so3 import so3_exp, so3_log
@@ -10,17 +11,33 @@ from ..lie._so3 import so3_exp, so3_log
 WINDOW = 5
 
 
-def _local_quadratic(t, y, present, T):
-    """Value and rate at T of a quadratic fitted to the ``WINDOW`` present samples nearest T, or
-    None where fewer than 3 are present."""
+def _window(t, present, T):
+    """The ``WINDOW`` present samples nearest T, nearest first, or None where fewer than 3 are
+    present."""
     idx = np.flatnonzero(present)
     if idx.size < 3:
         return None
-    idx = idx[np.argsort(np.abs(t[idx] - T), kind="stable")[:WINDOW]]
-    dt = t[idx] - T
+    return idx[np.argsort(np.abs(t[idx] - T), kind="stable")[:WINDOW]]
+
+
+def _local_quadratic(t, y, present, T):
+    """Value and rate at T of a quadratic fitted to ``y`` at the samples of ``_window`` (or None)."""
+    idx = _window(t, present, T)
+    if idx is None:
+        return None
+    return _quadratic(t[idx] - T, y[idx])
+
+
+def _quadratic(dt, y):
     A = np.stack([np.ones_like(dt), dt, dt**2], axis=1)
-    coef = np.linalg.lstsq(A, y[idx], rcond=None)[0]
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
     return coef[0], coef[1]
+
+
+@jax.jit
+def _chart(R_c, R):
+    """Rotation vectors of R_cᵀR for a stack R."""
+    return jax.vmap(lambda Ri: so3_log(R_c.T @ Ri))(R)
 
 
 def estimate_states(telemetry, times, fallback):
@@ -33,30 +50,25 @@ def estimate_states(telemetry, times, fallback):
     states, refs = [], []
     for i, T in enumerate(times):
         R, omega, q, qdot = R_fb[i], w_fb[i], q_fb[i].copy(), R_fb[i] @ nu_fb[i]
-        if "attitude" in values:
-            present = mask["attitude"][:, 0]
-            if np.sum(present) >= 3:
-                c = np.flatnonzero(present)[np.argmin(np.abs(t[present] - T))]
-                chart = np.stack([np.asarray(so3_log(values["attitude"][c].T @ Ri)) for Ri in values["attitude"]])
-                fit = _local_quadratic(t, chart, present, T)
-                R, omega = values["attitude"][c] @ np.asarray(so3_exp(fit[0])), fit[1]
-        if "rates" in values:
-            for k in range(3):
-                fit = _local_quadratic(t, values["rates"][:, k], mask["rates"][:, k], T)
-                if fit is not None:
-                    omega = omega.copy()
-                    omega[k] = fit[0]
-        if "position" in values:
-            for k in range(3):
-                fit = _local_quadratic(t, values["position"][:, k], mask["position"][:, k], T)
-                if fit is not None:
-                    q[k], qdot[k] = fit
+        idx = _window(t, mask["attitude"][:, 0], T)
+        if idx is not None:  # the chart at the nearest attitude sample
+            R_c = values["attitude"][idx[0]]
+            delta, omega = _quadratic(t[idx] - T, np.asarray(_chart(R_c, values["attitude"][idx])))
+            R = R_c @ np.asarray(so3_exp(delta))
+        for k in range(3):
+            fit = _local_quadratic(t, values["rates"][:, k], mask["rates"][:, k], T)
+            if fit is not None:
+                omega = omega.copy()
+                omega[k] = fit[0]
+        for k in range(3):
+            fit = _local_quadratic(t, values["position"][:, k], mask["position"][:, k], T)
+            if fit is not None:
+                q[k], qdot[k] = fit
         nu = R.T @ qdot
-        if "velocity" in values:
-            for k in range(3):
-                fit = _local_quadratic(t, values["velocity"][:, k], mask["velocity"][:, k], T)
-                if fit is not None:
-                    nu[k] = fit[0]
+        for k in range(3):
+            fit = _local_quadratic(t, values["velocity"][:, k], mask["velocity"][:, k], T)
+            if fit is not None:
+                nu[k] = fit[0]
         states.append(np.concatenate([np.zeros(3), omega, q, nu]))
         refs.append(R)
     return np.stack(states), np.stack(refs)

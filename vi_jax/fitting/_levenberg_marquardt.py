@@ -17,6 +17,7 @@ def levenberg_marquardt(damping=1e-3, increase=4.0, decrease=3.0, max_step=0.5) 
     ``residuals`` r and ``jacobian`` J at ``params`` and ``value_fn`` (½Σr²/Σw); it proposes
     v = −(JᵀJ + λD)⁻¹Jᵀr, shortened to ``max_step`` in the largest component, and returns it if
     it lowers ``value_fn``, else 0 with a larger λ (a rejected step costs one evaluation).
+    ``normal``: JᵀJ, where the caller has it already.
 
     D is the largest diag JᵀJ met so far (Marquardt's scaling, kept from shrinking: a parameter
     whose sensitivity fades on the way to a boundary of the model, such as an inertia running to
@@ -30,9 +31,9 @@ def levenberg_marquardt(damping=1e-3, increase=4.0, decrease=3.0, max_step=0.5) 
     def init(params):
         return LevenbergMarquardtState(jnp.asarray(damping, jnp.result_type(params)), jnp.zeros_like(params))
 
-    def update(updates, state, params, *, residuals, jacobian, value_fn, value, **extra):
+    def update(updates, state, params, *, residuals, jacobian, value_fn, value, normal=None, **extra):
         del updates, extra
-        A = jacobian.T @ jacobian
+        A = jacobian.T @ jacobian if normal is None else normal
         seen = jnp.maximum(state.scale, jnp.diag(A))
         blind = seen <= 1e-20 * jnp.max(seen)  # an unknown the data do not see does not move
         scale = jnp.where(blind, 1.0, seen)

@@ -24,7 +24,7 @@ import numpy as np
 
 from .._system import State
 from ..engine import simulate
-from ..lie._so3 import so3_exp, so3_log
+from ..lie._so3 import so3_exp, so3_log, unskew3
 from ._robust import robust_residuals
 from ._telemetry import CHANNELS
 
@@ -62,10 +62,6 @@ class Layout(eqx.Module):
 def start_state(s, R_ref):
     R = R_ref @ so3_exp(s[:3])
     return State(g=R, xi=s[3:6], q=s[6:9], qdot=R @ s[9:12])
-
-
-def _vee_skew(A):
-    return 0.5 * jnp.stack([A[..., 2, 1] - A[..., 1, 2], A[..., 0, 2] - A[..., 2, 0], A[..., 1, 0] - A[..., 0, 1]], -1)
 
 
 def _segment_nodes(z, R_ref, model_of, layout, tau, order, n_free):
@@ -109,7 +105,7 @@ def observation_residuals(nodes, layout, samples, loss):
     out = []
     for c in CHANNELS:
         if c == "attitude":
-            diff = _vee_skew(jnp.einsum("nji,njk->nik", values[c], model[c]))
+            diff = unskew3(jnp.einsum("nji,njk->nik", values[c], model[c]))
         else:
             diff = model[c] - values[c]
         out.append((robust_residuals(diff / scale[c], loss) * mask[c]).ravel())
@@ -122,7 +118,7 @@ def continuity_residuals(nodes, states, R_ref, weight):
     R, omega, q, nu = (x[:-1, -1] for x in nodes)
     start = jax.vmap(start_state)(states[1:], R_ref[1:])
     parts = [
-        _vee_skew(jnp.einsum("nji,njk->nik", start.g, R)) / CONTINUITY_SCALE["attitude"],
+        unskew3(jnp.einsum("nji,njk->nik", start.g, R)) / CONTINUITY_SCALE["attitude"],
         (omega - start.xi) / CONTINUITY_SCALE["rates"],
         (q - start.q) / CONTINUITY_SCALE["position"],
         (nu - states[1:, 9:12]) / CONTINUITY_SCALE["velocity"],

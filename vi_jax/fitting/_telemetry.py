@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
+from .._system import State
 from ..engine import simulate
 from ..lie import SO3
 
@@ -114,8 +115,6 @@ def synthesize_telemetry(model, x0, t, *, sigma, h, order=4, seed=0, outliers=0.
     R, omega, q, nu = (np.asarray(a) for a in (sol.R, sol.omega, sol.q, sol.nu))
 
     def partial(i):
-        from .._system import State
-
         x = State(g=jnp.asarray(R[k[i]]), xi=jnp.asarray(omega[k[i]]), q=jnp.asarray(q[k[i]]), qdot=jnp.asarray(R[k[i]] @ nu[k[i]]))
         dt = t[i] - k[i] * h
         if dt <= 1e-12 * max(h, 1.0):

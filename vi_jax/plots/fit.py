@@ -3,7 +3,9 @@ against the telemetry per channel, and the whitened residuals."""
 
 import numpy as np
 
+from ..fitting._csv import EULER, VECTOR_COLUMNS, _matrix_to_euler
 from ..fitting._telemetry import UNITS
+from ..lie._so3 import unskew3
 
 
 def plot_loss(result, path):
@@ -24,18 +26,13 @@ def plot_loss(result, path):
     fig.savefig(path, dpi=120)
 
 
-_COMPONENTS = {"position": ("x", "y", "z"), "attitude": ("roll", "pitch", "yaw"), "rates": ("p", "q", "r"), "velocity": ("u", "v", "w")}
-
-
-def _zyx(R):
-    """Roll, pitch, yaw (ZYX) of rotation matrices (m, 3, 3)."""
-    return np.stack([np.arctan2(R[:, 2, 1], R[:, 2, 2]), -np.arcsin(np.clip(R[:, 2, 0], -1, 1)), np.arctan2(R[:, 1, 0], R[:, 0, 0])], -1)
+_COMPONENTS = {**VECTOR_COLUMNS, "attitude": EULER}  # the CSV columns of each channel
 
 
 def _observed_and_fitted(result, telemetry, channel):
     obs, fitted = np.asarray(telemetry.values[channel]), result.prediction[channel]
     if channel == "attitude":  # angles continued past ±π along the fitted motion
-        obs, wrapped = _zyx(obs), _zyx(fitted)
+        obs, wrapped = _matrix_to_euler(obs), _matrix_to_euler(fitted)
         fitted = np.unwrap(wrapped, axis=0)
         obs = obs + 2 * np.pi * np.round((fitted - obs) / (2 * np.pi))
     return obs, fitted, np.asarray(telemetry.mask[channel]) > 0
@@ -80,8 +77,7 @@ def plot_residuals(result, telemetry, path):
     def draw(ax, c, t):
         obs, fitted, mask = np.asarray(telemetry.values[c]), result.prediction[c], np.asarray(telemetry.mask[c]) > 0
         if c == "attitude":
-            A = np.einsum("nji,njk->nik", obs, fitted)
-            diff = 0.5 * np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0], A[:, 1, 0] - A[:, 0, 1]], -1)
+            diff = np.asarray(unskew3(np.einsum("nji,njk->nik", obs, fitted)))
         else:
             diff = fitted - obs
         for k, name in enumerate(("x", "y", "z") if c == "attitude" else _COMPONENTS[c]):
