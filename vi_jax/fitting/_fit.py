@@ -364,10 +364,9 @@ def _identity_fallback(n):
 
 
 def _fully_observed(telemetry):
-    """Whether position and attitude (or rates) are observed throughout, so that the first
-    guesses of the segment states need no simulation."""
-    has = lambda c: bool(np.all(telemetry.observed(c)))  # noqa: E731
-    return has("position") and (has("attitude") or has("rates"))
+    """Whether every component of position and attitude is observed, so that the first guesses
+    of the segment states need no simulation (rates alone give no attitude)."""
+    return bool(np.all(telemetry.observed("position")) and np.all(telemetry.observed("attitude")))
 
 
 def _state_from(estimate, i):
