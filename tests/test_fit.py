@@ -55,6 +55,7 @@ def test_noise_free_data_recover_the_true_parameters():
 
 def test_noisy_data_recover_the_parameters_within_the_reported_uncertainty():
     result = fit(observations(True), X0, GUESS)
+    assert result.converged
     z = (result.values - TRUE_VALUES) / result.std
     assert np.all(np.abs(z) <= 3.5), z
     mahalanobis = float((result.values - TRUE_VALUES) @ np.linalg.solve(result.covariance, result.values - TRUE_VALUES))
@@ -169,6 +170,8 @@ def test_cli_writes_parameters_and_loss_curve(tmp_path, capsys):
     fitted, std, truth, guess = report["fit"]["parameters"], report["fit"]["std"], report["truth"], report["guess"]
     assert set(fitted) == set(truth) == set(std) == set(guess) and len(fitted) == 9
     assert 0 < report["fit"]["iterations"] <= 2 * (len(report["settings"]["continuity"]) + 1)  # ≤ 2 per stage
+    # Plumbing only: two steps per multiple-shooting stage need not move every parameter towards
+    # the truth (the stages trade parameters against segment states); fit quality is tested above.
     assert all(np.isfinite(v) for v in fitted.values()) and np.isfinite(report["fit"]["reduced_chi2"])
     assert report["fit"]["identifiability"]["not_identifiable"] == []
     assert set(report["fit"]["residuals"]) == {"position", "attitude"}

@@ -117,7 +117,10 @@ def test_position_only_record_names_what_it_cannot_determine(irregular):
     record = Telemetry(irregular.t, sigma={"position": 0.01}, position=irregular.values["position"])
     result = fit(record, X0, ADDED_MASS_GUESS, h=0.05, free=("added_mass",), segments=1, max_steps=400)
     assert result.converged and 0.6 <= result.reduced_chi2 <= 1.4
-    assert np.all(np.abs(z_scores(result, ("added_mass",))) <= 6.0)  # measured 4.8: see docs
+    # 6σ, not 4σ: without attitudes the estimate spreads wider than the linearised Fisher σ. On
+    # this record a fit started at the truth reaches the same minimum, 4.8σ off in M_A[0,0];
+    # two other noise seeds end within 2.2σ.
+    assert np.all(np.abs(z_scores(result, ("added_mass",))) <= 6.0)
     report = channel_report_at_truth(record)
     assert report["not_identifiable"] == [] and report["states_not_identifiable"] == []
     poor = set(report["poorly_determined"])
