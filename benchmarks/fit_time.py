@@ -1,8 +1,9 @@
 """Wall time of one ``vj.fit`` of the 9 default free parameters (and the initial state) to 200
 irregularly spaced samples of positions and attitudes over 60 s (σ = 1 cm, 0.01 rad), from a
-guess 20–30 % off, compile included: what a user waits for.
+guess 20–30 % off, compile included: what a user waits for. ``--fast-loops``: with
+``vj.enable_fast_cpu_loops()`` (as the ``vi-jax`` command line runs), else default XLA flags.
 
-    python benchmarks/fit_time.py [--repeats 3] [--segments N]
+    python benchmarks/fit_time.py [--repeats 3] [--segments N] [--fast-loops]
 """
 
 import argparse
@@ -12,15 +13,14 @@ import time
 import jax
 import numpy as np
 
-from _timing import write_json
+from _timing import parse_args_with_fast_loops, write_config_json
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="fits, each in this process (the first compiles)")
     parser.add_argument("--segments", type=int, default=None)
-    parser.add_argument("--out", default="benchmarks/results/fit_time.json")
-    args = parser.parse_args()
+    args = parse_args_with_fast_loops(parser)
     jax.config.update("jax_enable_x64", True)
     import vi_jax as vj
     from vi_jax.fitting import Parametrisation
@@ -42,7 +42,7 @@ def main():
         z = (result.values - true) / result.std
         rows.append({"seconds": seconds, "iterations": result.iterations, "max_abs_z": float(np.max(np.abs(z))), "reduced_chi2": result.reduced_chi2})
         print(f"fit {k + 1}: {seconds:.1f} s, {result.iterations} iterations, max |z| = {rows[-1]['max_abs_z']:.2f}, reduced χ² = {result.reduced_chi2:.3f}")
-    write_json(args.out, {"samples": int(t.size), "parameters": len(true), "segments": args.segments, "first_seconds": rows[0]["seconds"],
+    write_config_json("fit_time", args.fast_loops, **{"samples": int(t.size), "parameters": len(true), "segments": args.segments, "first_seconds": rows[0]["seconds"],
                           "median_seconds": statistics.median(r["seconds"] for r in rows), "rows": rows})
 
 
