@@ -3,7 +3,8 @@ value's definition unchanged (the suite is compile-bound: most tests build a new
 
 * XLA:CPU's older elemental emitters (``--xla_cpu_use_fusion_emitters=false``) spend
   0.51–0.78× the backend compile time, at 0.73–1.41× the step cost, within the run-to-run
-  spread (two runs of ``python benchmarks/compile_time.py``).
+  spread (two runs of ``python benchmarks/compile_time.py``); used where this XLA still knows
+  the flag (probed once per run: XLA aborts on an unknown flag).
 * One persistent compilation cache per test run, shared by the xdist workers and the tests'
   subprocesses (a program that two tests or two workers build is compiled once); the run's
   controller creates it in the temporary directory and removes it at the end.
@@ -11,6 +12,8 @@ value's definition unchanged (the suite is compile-bound: most tests build a new
 
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 
 # Before scipy's OpenBLAS loads (jax imports it for LAPACK): one OpenBLAS thread. Two fresh-clone
@@ -19,12 +22,20 @@ import tempfile
 # unknown normal equations called from XLA's threads; not reproduced in isolation (issue note).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
-
-os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
+_ELEMENTAL = "--xla_cpu_use_fusion_emitters=false"
 _CACHE_OWNER = "VI_JAX_TEST_XLA_CACHE" not in os.environ
-if _CACHE_OWNER:  # the controller (or a run without xdist); the workers inherit the variable
+if _CACHE_OWNER:  # the controller (or a run without xdist); the workers inherit the variables
     os.environ["VI_JAX_TEST_XLA_CACHE"] = tempfile.mkdtemp(prefix="vi_jax_test_xla_cache_")
+    # XLA aborts the process on a flag it does not know (newer XLA dropped this one): probe it.
+    flags = f"{os.environ.get('XLA_FLAGS', '')} {_ELEMENTAL}".strip()
+    probe = subprocess.run(
+        [sys.executable, "-c", "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()"],
+        env=dict(os.environ, XLA_FLAGS=flags), capture_output=True,
+    )
+    if probe.returncode == 0:
+        os.environ["XLA_FLAGS"] = flags
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 # Set here and as environment variables, which JAX reads at import: the tests' subprocesses
