@@ -85,6 +85,28 @@ def test_chunks_padding_and_conservation_per_member():
     assert len(set(np.round(kn[:, 0], 12))) == n  # the members really differ
 
 
+def test_whole_batch_plan_equals_the_chunked_plan(monkeypatch):
+    """The accelerator plan (every member in every kernel) against the CPU plan (chunks of
+    ``CHUNK`` members one after another), both run here: the same scheme on the same members,
+    equal to round-off (XLA may contract or vectorise the two programs differently: a few ε per
+    step over 240 steps, far below the bound 1e-12); the plan follows the platform the run is
+    placed on."""
+    from vi_jax.engine import _ensemble
+
+    assert _ensemble.target_platform() == jax.default_backend()
+    assert _ensemble.target_platform(jax.make_mesh((1,), ("members",), devices=jax.devices("cpu")[:1])) == "cpu"
+    n = CHUNK + 6
+    states = vary(X0, xi=np.asarray(X0.xi) + 0.4 * np.random.default_rng(6).normal(size=(n, 3)))
+    plans = {}
+    for platform in ("cpu", "gpu"):
+        monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None, p=platform: p)
+        plans[platform] = ensemble(MODEL, states, H, N_STEPS, save_every=SAVE_EVERY, method="batched")
+    for name in FIELDS:
+        ours, theirs = np.asarray(getattr(plans["gpu"], name)), np.asarray(getattr(plans["cpu"], name))
+        assert ours.shape == theirs.shape == (n,) + ours.shape[1:], name
+        assert np.max(np.abs(ours - theirs)) <= 1e-12 * np.max(np.abs(theirs)), name
+
+
 def test_per_member_convergence_is_reported():
     """τ = exp with one member rotating by more than π per step: that member is flagged
     (singular τ), the others are unaffected and equal their own runs (trajectories and

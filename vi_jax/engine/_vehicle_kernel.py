@@ -324,34 +324,36 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
     )
 
 
-CHUNK = 64  # members per inner loop of the batched kernel (benchmarks/ensemble.py)
+CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/ensemble.py)
 
 
-def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau, rtol, max_iterations):
-    """The batched kernel over chunks of ``CHUNK`` members, one chunk after the other: the
-    working set of a chunk stays in cache, and XLA:CPU runs a small loop as one kernel
-    rather than one dispatch per fused operation (several times faster per member)."""
-    if n_members <= CHUNK:
+def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau, rtol, max_iterations, chunk):
+    """The batched kernel over chunks of ``chunk`` members, one chunk after the other (None:
+    all members at once). On CPU (``CHUNK``) the working set of a chunk stays in cache, and
+    XLA:CPU runs a small loop as one kernel rather than one dispatch per fused operation
+    (several times faster per member); a GPU wants the whole batch in every kernel
+    (``benchmarks/ensemble_gpu.py``)."""
+    if chunk is None or n_members <= chunk:
         system, x0 = eqx.combine(dynamic, static)
         return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members)
-    n_chunks = -(-n_members // CHUNK)
-    padded = n_chunks * CHUNK
+    n_chunks = -(-n_members // chunk)
+    padded = n_chunks * chunk
     is_none = lambda x: x is None  # noqa: E731
 
     def split(ax, x):
         if ax is None or x is None:
             return x
         x = jnp.concatenate([x, jnp.repeat(x[-1:], padded - n_members, axis=0)]) if padded > n_members else x
-        return x.reshape((n_chunks, CHUNK) + x.shape[1:])
+        return x.reshape((n_chunks, chunk) + x.shape[1:])
 
     batched = jax.tree.map(split, axes, dynamic, is_leaf=is_none)
     shared = jax.tree.map(lambda ax, x: x if ax is None else None, axes, dynamic, is_leaf=is_none)
     chunked = jax.tree.map(lambda ax, x: None if ax is None else x, axes, batched, is_leaf=is_none)
 
-    def one(chunk):
-        merged = jax.tree.map(lambda a, b: a if b is None else b, shared, chunk, is_leaf=is_none)
+    def one(members):
+        merged = jax.tree.map(lambda a, b: a if b is None else b, shared, members, is_leaf=is_none)
         system, x0 = eqx.combine(merged, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, CHUNK)
+        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, chunk)
 
     out = jax.lax.map(one, chunked)
     return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:n_members], out)
