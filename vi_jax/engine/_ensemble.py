@@ -121,8 +121,8 @@ def member_converged(sol: Solution):
     return jnp.all(sol.result == SUCCESS, axis=-1)
 
 
-def _batched_supported(system, tau, order, checkpoint):
-    return isinstance(system, UnderwaterVehicle) and order == 1 and tau.name in ("cayley", "exp") and not checkpoint
+def _batched_supported(system, tau, order):
+    return isinstance(system, UnderwaterVehicle) and order == 1 and tau.name in ("cayley", "exp")
 
 
 def ensemble(
@@ -142,7 +142,7 @@ def ensemble(
     throw: bool = True,
     rtol=None,
     max_newton_iterations: int = 20,
-    checkpoint: bool = False,
+    checkpoint: bool = True,
     progress: bool = False,
 ) -> Solution:
     """``vj.simulate`` for every member of an ensemble; fields get a leading member axis.
@@ -152,7 +152,9 @@ def ensemble(
     batched arguments. ``method``: "batched" (the fast vehicle kernel, order 1), "vmap"
     (generic) or "auto" (batched when it applies). ``mesh``: a ``jax.sharding.Mesh``; members
     are split over all its devices (padded to a multiple of their number). The other keywords
-    are ``vj.simulate``'s (``scheme="splitting"``: ``jax.vmap`` of the explicit splitting);
+    are ``vj.simulate``'s (``checkpoint=True`` by default, on both paths: reverse mode
+    rematerialises, memory grows with saved nodes, not steps; ``scheme="splitting"``:
+    ``jax.vmap`` of the explicit splitting);
     ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them. ``progress=True`` (outside ``jit``) runs the members in equal groups of
@@ -189,13 +191,13 @@ def ensemble(
             err = jnp.max(jax.vmap(G.membership_error)(jnp.reshape(x0.g, (-1,) + jnp.shape(x0.g)[-2:])))
         if not float(err) <= 1e-6:
             raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
-    if method == "batched" and scheme == "dep" and not _batched_supported(system, tau_map, order, checkpoint):
+    if method == "batched" and scheme == "dep" and not _batched_supported(system, tau_map, order):
         raise ValueError(
-            "method: 'batched' needs an UnderwaterVehicle, order=1, tau 'cayley' or 'exp' and checkpoint=False; "
-            f"got {type(system).__name__}, order={order}, tau={tau_map.name!r}, checkpoint={checkpoint}; use 'vmap'"
+            "method: 'batched' needs an UnderwaterVehicle, order=1 and tau 'cayley' or 'exp'; "
+            f"got {type(system).__name__}, order={order}, tau={tau_map.name!r}; use 'vmap'"
         )
     batched = scheme == "dep" and (
-        method == "batched" or (method == "auto" and _batched_supported(system, tau_map, order, checkpoint))
+        method == "batched" or (method == "auto" and _batched_supported(system, tau_map, order))
     )
     if mesh is not None and not isinstance(mesh, jax.sharding.Mesh):
         raise ValueError(f"mesh: expected a jax.sharding.Mesh, got {type(mesh).__name__}")
@@ -233,7 +235,7 @@ def ensemble(
 def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
     system, x0 = eqx.combine(dynamic, static)
     if batched:
-        return vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau.name, rtol, max_iterations, chunk)
+        return vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau.name, rtol, max_iterations, chunk, checkpoint)
 
     def one(system, x0):
         return simulate(

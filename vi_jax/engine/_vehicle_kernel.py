@@ -5,12 +5,15 @@ fuses a whole Newton iteration into one vectorised loop. The Newton machinery (J
 forward mode, unrolled LU, masked fallback iterations, implicit-function gradients) is generic in
 the residual; only the step itself is written for the vehicle."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import equinox as eqx
 
 from ..solvers import MAX_ITERATIONS, NONFINITE, SINGULAR_DIFFERENCE_MAP, SUCCESS, CHORD_ITERATIONS
 from ..lie import _series
+from .._saved_nodes import SAVE_BLOCK, scan_saved_nodes
 from ._solution import Solution
 
 
@@ -270,8 +273,10 @@ def _stack(v):
     return jnp.stack(v, axis=-1)
 
 
-def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members):
-    """Solution of every member (leading axis = member) from the batch-minor kernel."""
+def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members, checkpoint):
+    """Solution of every member (leading axis = member) from the batch-minor kernel.
+    ``checkpoint``: reverse mode rematerialises as ``vj.simulate``'s (states stored at blocks of
+    saved nodes, √save_every blocks of steps between two nodes); the forward pass is unchanged."""
     dtype = jnp.asarray(h).dtype
     p = _vehicle_parameters(system, dtype)
     full = lambda x: jnp.broadcast_to(jnp.asarray(x, dtype), (n_members,))  # noqa: E731
@@ -289,16 +294,24 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
         state, stats = step(state, None)
         return (state, jax.tree.map(jnp.maximum, worst, stats)), None
 
+    def worst_steps(carry, n):
+        return jax.lax.scan(worst_step, carry, None, length=n)[0]
+
+    def node_steps(state):
+        none = (jnp.zeros((n_members,), jnp.int32), jnp.zeros((n_members,), dtype), jnp.zeros((n_members,), jnp.int8))
+        if not checkpoint or save_every <= SAVE_BLOCK:
+            return worst_steps((state, none), save_every)
+        inner = math.isqrt(save_every)
+        outer, rest = divmod(save_every, inner)
+        carry, _ = jax.lax.scan(jax.checkpoint(lambda c, _: (worst_steps(c, inner), None)), (state, none), None, length=outer)
+        return worst_steps(carry, rest) if rest else carry
+
     def node(state, _):
-        if save_every == 1:
-            state, stats = step(state, None)
-        else:
-            none = (jnp.zeros((n_members,), jnp.int32), jnp.zeros((n_members,), dtype), jnp.zeros((n_members,), jnp.int8))
-            (state, stats), _ = jax.lax.scan(worst_step, (state, none), None, length=save_every)
+        state, stats = step(state, None) if save_every == 1 else node_steps(state)
         # One packed row per node: a write per saved array costs more than the arithmetic.
         return state, (jnp.stack(jax.tree.leaves(state[:4])), jnp.stack([x.astype(dtype) for x in stats]))
 
-    _, (saved, stats) = jax.lax.scan(node, state0, None, length=n_saved)
+    _, (saved, stats) = scan_saved_nodes(node, state0, n_saved, checkpoint)
     saved = jnp.concatenate([jnp.stack(jax.tree.leaves(state0[:4]))[None], saved])
     R, q, M, P = jax.tree.unflatten(jax.tree.structure(state0[:4]), list(jnp.moveaxis(saved, 1, 0)))
     omega, nu, energy, kn, kn_scale = _vehicle_diagnostics(p, R, q, M, P)
@@ -327,7 +340,7 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
 CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/ensemble.py)
 
 
-def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau, rtol, max_iterations, chunk):
+def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau, rtol, max_iterations, chunk, checkpoint):
     """The batched kernel over chunks of ``chunk`` members, one chunk after the other (None:
     all members at once). On CPU (``CHUNK``) the working set of a chunk stays in cache, and
     XLA:CPU runs a small loop as one kernel rather than one dispatch per fused operation
@@ -335,7 +348,7 @@ def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, ta
     (``benchmarks/ensemble_gpu.py``)."""
     if chunk is None or n_members <= chunk:
         system, x0 = eqx.combine(dynamic, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members)
+        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members, checkpoint)
     n_chunks = -(-n_members // chunk)
     padded = n_chunks * chunk
     is_none = lambda x: x is None  # noqa: E731
@@ -353,7 +366,7 @@ def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, ta
     def one(members):
         merged = jax.tree.map(lambda a, b: a if b is None else b, shared, members, is_leaf=is_none)
         system, x0 = eqx.combine(merged, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, chunk)
+        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, chunk, checkpoint)
 
     out = jax.lax.map(one, chunked)
     return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:n_members], out)
