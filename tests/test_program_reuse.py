@@ -71,3 +71,25 @@ def test_beam_time_marches_of_every_length_share_one_program(caplog):
     each = np.asarray(every_row.newton_iterations)
     expected = [np.maximum(each[3 * i], each[3 * i + 1 : 3 * i + 3].max()) for i in range(4)] + [each[12]]
     np.testing.assert_array_equal(loop.newton_iterations, np.stack(expected))
+
+
+def test_ensemble_runs_of_different_lengths_share_one_program(caplog):
+    """``vj.ensemble`` on concrete inputs (both paths) takes traced step counts: another
+    ``n_steps`` or ``save_every`` with the same saved-node capacity compiles nothing, and the
+    run equals the traced one (static lengths: what ``jit`` runs) to round-off."""
+    model = vj.models.UnderwaterVehicle()
+    x0 = model.initial_state()
+    states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.3 * np.random.default_rng(1).normal(size=(3, 3)))
+    for method in ("batched", "vmap"):
+        first = vj.ensemble(model, states, 0.02, 60, save_every=4, method=method)  # 15 nodes: capacity 16
+        traced = eqx.filter_jit(lambda s, method=method: vj.ensemble(model, s, 0.02, 60, save_every=4, method=method))(states)
+        for name in ("g", "q", "M", "P", "energy", "t", "newton_iterations"):
+            ours, theirs = np.asarray(getattr(first, name)), np.asarray(getattr(traced, name))
+            assert ours.shape == theirs.shape == (3, 16) + ours.shape[2:], name
+            assert np.max(np.abs(ours - theirs)) <= 1e-12 * max(np.max(np.abs(theirs)), 1.0), name
+        with jax.log_compiles(), caplog.at_level(logging.DEBUG, logger="jax"):
+            other = vj.ensemble(model, states, 0.02, 36, save_every=3, method=method)  # 12 nodes
+        compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_run_loop)")]
+        assert compiled == [], method
+        assert other.q.shape == (3, 13, 3)
+        np.testing.assert_array_equal(np.asarray(other.t[0]), 0.06 * np.arange(13))

@@ -43,12 +43,14 @@ from jax.sharding import NamedSharding, PartitionSpec
 from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
-from ._simulate import NewtonFailure, Solution, _default_rtol, simulate, validate_scheme
+from .._saved_nodes import first_rows
+from ..discrete._composition import composition_coefficients
+from ._simulate import NewtonFailure, Solution, _default_rtol, _simulate_loop, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
-from ._vehicle_kernel import CHUNK as CHUNK, vehicle_chunked
+from ._vehicle_kernel import CHUNK as CHUNK, _vehicle_batched, _vehicle_loop, vehicle_chunked
 
 METHODS = ("auto", "batched", "vmap")
 
@@ -155,7 +157,9 @@ def ensemble(
     are ``vj.simulate``'s (``checkpoint=True`` by default, on both paths: reverse mode
     rematerialises, memory grows with saved nodes, not steps; ``scheme="splitting"``:
     ``jax.vmap`` of the explicit splitting);
-    ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. Members
+    ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. On concrete
+    inputs (no ``mesh``) the DEP paths take the step counts as traced integers: one compiled
+    program per saved-node capacity (the power of two ≥ the saved nodes), not per ``n_steps``. Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them. ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
@@ -216,7 +220,20 @@ def ensemble(
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
 
+    # On concrete inputs the DEP paths take the step counts as traced integers: one program per
+    # saved-node capacity (a power of two), not per n_steps.
+    looped = mesh is None and scheme == "dep" and val.is_concrete((dynamic, h))
+
     def run(dynamic, n_members):
+        if looped:
+            n_saved = options["n_saved"]
+            count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+            loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk")}
+            sol = _run_loop(
+                dynamic, static, axes, h, count(n_saved), count(save_every),
+                n_members=n_members, capacity=ensemble_capacity(n_saved), **loop_options,
+            )
+            return first_rows(sol, n_saved + 1, axis=1)
         if mesh is None:
             return _run(dynamic, static, axes, h, n_members=n_members, **options)
         return _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
@@ -235,7 +252,10 @@ def ensemble(
 def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
     system, x0 = eqx.combine(dynamic, static)
     if batched:
-        return vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau.name, rtol, max_iterations, chunk, checkpoint)
+        def kernel(system, x0, n):
+            return _vehicle_batched(system, x0, h, n_saved, save_every, tau.name, rtol, max_iterations, n, checkpoint)
+
+        return vehicle_chunked(dynamic, static, axes, n_members, chunk, kernel)
 
     def one(system, x0):
         return simulate(
@@ -244,6 +264,31 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         )
 
     return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
+
+
+def ensemble_capacity(n_saved: int) -> int:
+    """Saved-node rows of the looped program: the power of two ≥ ``n_saved`` (a buffer per
+    member: no minimum like ``vj.simulate``'s 1024)."""
+    return 1 << max(n_saved - 1, 0).bit_length()
+
+
+@eqx.filter_jit
+def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capacity, tau, order, rtol, max_iterations, batched, chunk):
+    """``_run``'s DEP paths with traced ``n_saved`` (≤ ``capacity``) and ``save_every``."""
+    if batched:
+        def kernel(system, x0, n):
+            return _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau.name, rtol, max_iterations, n)
+
+        return vehicle_chunked(dynamic, static, axes, n_members, chunk, kernel)
+    rule, gammas = composition_coefficients(order)
+
+    def one(system, x0):
+        x0 = jax.tree.map(lambda x: jnp.asarray(x, h.dtype), x0)
+        return _simulate_loop(
+            system, x0, h, n_saved, save_every, capacity=capacity, tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_iterations
+        )
+
+    return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(*eqx.combine(dynamic, static))
 
 
 def _pad_members(x, size):

@@ -273,10 +273,9 @@ def _stack(v):
     return jnp.stack(v, axis=-1)
 
 
-def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members, checkpoint):
-    """Solution of every member (leading axis = member) from the batch-minor kernel.
-    ``checkpoint``: reverse mode rematerialises as ``vj.simulate``'s (states stored at blocks of
-    saved nodes, √save_every blocks of steps between two nodes); the forward pass is unchanged."""
+def _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members):
+    """(parameters, dtype, initial state, ``worst_step``): the step carrying the worst Newton
+    statistics since the last saved node, ``((state, worst), _) -> ((state, worst), None)``."""
     dtype = jnp.asarray(h).dtype
     p = _vehicle_parameters(system, dtype)
     full = lambda x: jnp.broadcast_to(jnp.asarray(x, dtype), (n_members,))  # noqa: E731
@@ -286,32 +285,68 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
     v0 = tuple(full(x0.qdot[..., i]) for i in range(3))
     state0 = (R0, q0, _matvec(p["inertia"], omega0), _matvec(p["mass"], _tmatvec(R0, v0)), omega0)
 
-    def step(state, _):
-        return _vehicle_step(p, tau, h, rtol, max_iterations, state)
-
-    def worst_step(carry, _):  # the worst statistics since the last saved node, carried
+    def worst_step(carry, _):
         state, worst = carry
-        state, stats = step(state, None)
+        state, stats = _vehicle_step(p, tau, h, rtol, max_iterations, state)
         return (state, jax.tree.map(jnp.maximum, worst, stats)), None
+
+    return p, dtype, state0, worst_step
+
+
+def _no_stats(n_members, dtype):
+    return (jnp.zeros((n_members,), jnp.int32), jnp.zeros((n_members,), dtype), jnp.zeros((n_members,), jnp.int8))
+
+
+def _pack(state, stats, dtype):
+    """One packed row per node: a write per saved array costs more than the arithmetic."""
+    return jnp.stack(jax.tree.leaves(state[:4])), jnp.stack([x.astype(dtype) for x in stats])
+
+
+def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members, checkpoint):
+    """Solution of every member (leading axis = member) from the batch-minor kernel (static
+    step counts: what ``jit``, ``grad`` and ``vmap`` trace). ``checkpoint``: reverse mode
+    rematerialises as ``vj.simulate``'s (states stored at blocks of saved nodes, √save_every
+    blocks of steps between two nodes); the forward pass is unchanged."""
+    p, dtype, state0, worst_step = _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members)
 
     def worst_steps(carry, n):
         return jax.lax.scan(worst_step, carry, None, length=n)[0]
 
-    def node_steps(state):
-        none = (jnp.zeros((n_members,), jnp.int32), jnp.zeros((n_members,), dtype), jnp.zeros((n_members,), jnp.int8))
-        if not checkpoint or save_every <= SAVE_BLOCK:
-            return worst_steps((state, none), save_every)
-        inner = math.isqrt(save_every)
-        outer, rest = divmod(save_every, inner)
-        carry, _ = jax.lax.scan(jax.checkpoint(lambda c, _: (worst_steps(c, inner), None)), (state, none), None, length=outer)
-        return worst_steps(carry, rest) if rest else carry
-
     def node(state, _):
-        state, stats = step(state, None) if save_every == 1 else node_steps(state)
-        # One packed row per node: a write per saved array costs more than the arithmetic.
-        return state, (jnp.stack(jax.tree.leaves(state[:4])), jnp.stack([x.astype(dtype) for x in stats]))
+        carry = (state, _no_stats(n_members, dtype))
+        if not checkpoint or save_every <= SAVE_BLOCK:
+            carry = worst_steps(carry, save_every)
+        else:
+            inner = math.isqrt(save_every)
+            outer, rest = divmod(save_every, inner)
+            carry, _ = jax.lax.scan(jax.checkpoint(lambda c, _: (worst_steps(c, inner), None)), carry, None, length=outer)
+            carry = worst_steps(carry, rest) if rest else carry
+        return carry[0], _pack(*carry, dtype)
 
     _, (saved, stats) = scan_saved_nodes(node, state0, n_saved, checkpoint)
+    return _vehicle_solution(p, state0, saved, stats, h * save_every, n_members, dtype)
+
+
+def _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau, rtol, max_iterations, n_members):
+    """The same with traced step counts (``n_saved`` ≤ ``capacity`` nodes of ``save_every``
+    steps): one program for every run length. Rows past ``n_saved`` repeat the initial state."""
+    p, dtype, state0, worst_step = _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members)
+    first, no_stats = _pack(state0, _no_stats(n_members, dtype), dtype)
+
+    def node(k, carry):
+        state, saved, stats = carry
+        carry = jax.lax.fori_loop(0, save_every, lambda _, c: worst_step(c, None)[0], (state, _no_stats(n_members, dtype)))
+        row, row_stats = _pack(*carry, dtype)
+        return carry[0], saved.at[k].set(row), stats.at[k].set(row_stats)
+
+    buffers = (jnp.broadcast_to(first, (capacity,) + first.shape), jnp.broadcast_to(no_stats, (capacity,) + no_stats.shape))
+    _, saved, stats = jax.lax.fori_loop(0, n_saved, node, (state0, *buffers))
+    return _vehicle_solution(p, state0, saved, stats, h * save_every, n_members, dtype)
+
+
+def _vehicle_solution(p, state0, saved, stats, dt_saved, n_members, dtype):
+    """The Solution from the packed rows of the saved nodes (the initial state prepended)."""
+    n_saved = saved.shape[0]
     saved = jnp.concatenate([jnp.stack(jax.tree.leaves(state0[:4]))[None], saved])
     R, q, M, P = jax.tree.unflatten(jax.tree.structure(state0[:4]), list(jnp.moveaxis(saved, 1, 0)))
     omega, nu, energy, kn, kn_scale = _vehicle_diagnostics(p, R, q, M, P)
@@ -321,7 +356,7 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
     )
     members_first = lambda x: jnp.moveaxis(x, 1, 0)  # noqa: E731  (nodes, members, …) → (members, nodes, …)
     return Solution(
-        t=jnp.broadcast_to(h * save_every * jnp.arange(n_saved + 1, dtype=dtype), (n_members, n_saved + 1)),
+        t=jnp.broadcast_to(dt_saved * jnp.arange(n_saved + 1, dtype=dtype), (n_members, n_saved + 1)),
         g=members_first(_stack(R)),
         xi=members_first(_stack(omega)),
         q=members_first(_stack(q)),
@@ -340,15 +375,15 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
 CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/ensemble.py)
 
 
-def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, tau, rtol, max_iterations, chunk, checkpoint):
-    """The batched kernel over chunks of ``chunk`` members, one chunk after the other (None:
-    all members at once). On CPU (``CHUNK``) the working set of a chunk stays in cache, and
+def vehicle_chunked(dynamic, static, axes, n_members, chunk, kernel):
+    """``kernel(system, x0, n_members)`` (``_vehicle_batched`` or ``_vehicle_loop`` with the
+    run's other arguments bound) over chunks of ``chunk`` members, one chunk after the other
+    (None: all members at once). On CPU (``CHUNK``) the working set of a chunk stays in cache, and
     XLA:CPU runs a small loop as one kernel rather than one dispatch per fused operation
     (several times faster per member); a GPU wants the whole batch in every kernel
     (``benchmarks/ensemble_gpu.py``)."""
     if chunk is None or n_members <= chunk:
-        system, x0 = eqx.combine(dynamic, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members, checkpoint)
+        return kernel(*eqx.combine(dynamic, static), n_members)
     n_chunks = -(-n_members // chunk)
     padded = n_chunks * chunk
     is_none = lambda x: x is None  # noqa: E731
@@ -365,8 +400,7 @@ def vehicle_chunked(dynamic, static, axes, h, n_members, n_saved, save_every, ta
 
     def one(members):
         merged = jax.tree.map(lambda a, b: a if b is None else b, shared, members, is_leaf=is_none)
-        system, x0 = eqx.combine(merged, static)
-        return _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, chunk, checkpoint)
+        return kernel(*eqx.combine(merged, static), chunk)
 
     out = jax.lax.map(one, chunked)
     return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:n_members], out)
