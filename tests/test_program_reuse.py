@@ -89,6 +89,9 @@ def test_ensemble_runs_of_different_lengths_share_one_program(caplog):
             assert np.max(np.abs(ours - theirs)) <= 1e-12 * max(np.max(np.abs(theirs)), 1.0), name
         with jax.log_compiles(), caplog.at_level(logging.DEBUG, logger="jax"):
             other = vj.ensemble(model, states, 0.02, 36, save_every=3, method=method)  # 12 nodes
+            full = vj.ensemble(model, states, 0.02, 64, save_every=4, method=method)  # 16: the whole buffer
+        assert full.q.shape == (3, 17, 3)
+        np.testing.assert_array_equal(np.asarray(full.q[:, :16]), np.asarray(first.q))
         compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_run_loop)")]
         assert compiled == [], method
         assert other.q.shape == (3, 13, 3)

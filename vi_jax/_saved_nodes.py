@@ -44,12 +44,11 @@ def saved_capacity(n_saved: int) -> int:
     return max(MIN_CAPACITY, 1 << max(n_saved - 1, 0).bit_length())
 
 
-def first_rows(tree, n, axis=0):
-    """The first ``n`` rows (along ``axis``) of every leaf, sliced on the host: an eager device slice would
+def first_rows(tree, n):
+    """The first ``n`` rows of every leaf, sliced on the host: an eager device slice would
     compile a small program for every new ``n``. Each row keeps its device and its
     committedness: a committed array would make a later ``jit`` that mixes it with fresh inputs
     compile anew. An uncommitted row goes to the default device (inside
     ``vi_jax.engine._placement.placement``: the run's)."""
     place = lambda x: next(iter(x.devices())) if x.committed else None  # noqa: E731
-    rows = (slice(None),) * axis + (slice(n),)
-    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[rows], place(x)), tree)
+    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], place(x)), tree)

@@ -33,6 +33,7 @@ host's share, and ``jax.experimental.multihost_utils.process_allgather`` collect
 """
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -43,7 +44,6 @@ from jax.sharding import NamedSharding, PartitionSpec
 from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
-from .._saved_nodes import first_rows
 from ..discrete._composition import composition_coefficients
 from ._simulate import NewtonFailure, Solution, _default_rtol, _simulate_loop, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
@@ -229,11 +229,12 @@ def ensemble(
             n_saved = options["n_saved"]
             count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
             loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk")}
+            capacity = ensemble_capacity(n_saved)
             sol = _run_loop(
                 dynamic, static, axes, h, count(n_saved), count(save_every),
-                n_members=n_members, capacity=ensemble_capacity(n_saved), **loop_options,
+                n_members=n_members, capacity=capacity, **loop_options,
             )
-            return first_rows(sol, n_saved + 1, axis=1)
+            return sol if capacity == n_saved else _first_nodes(sol, n_saved + 1)
         if mesh is None:
             return _run(dynamic, static, axes, h, n_members=n_members, **options)
         return _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
@@ -264,6 +265,13 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         )
 
     return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _first_nodes(sol, n):
+    """The first ``n`` nodes of every member, sliced on the device (an ensemble's rows can be
+    gigabytes: no trip through the host, at a small compile per new ``n``)."""
+    return jax.tree.map(lambda x: x[:, :n], sol)
 
 
 def ensemble_capacity(n_saved: int) -> int:
