@@ -107,6 +107,30 @@ def test_whole_batch_plan_equals_the_chunked_plan(monkeypatch):
         assert np.max(np.abs(ours - theirs)) <= 1e-12 * np.max(np.abs(theirs)), name
 
 
+def test_batched_products_switch_the_small_products_to_dots_at_trace_time():
+    """``batched_products`` (the ensemble's CPU plan for its ``vmap`` path) lowers the small
+    products to dots while active, to the same values; outside it they stay elementwise."""
+    from vi_jax.lie._small import batched_products, dot, matmul, matvec
+
+    a, b = jnp.asarray(np.random.default_rng(7).normal(size=(2, 5, 3, 3)))
+    x = b[..., 0]
+
+    def products(a, b, x):
+        return matmul(a, b), matvec(a, x), dot(x, x)
+
+    def has_dot():  # a new function each time: make_jaxpr caches traces by function
+        return "dot_general" in str(jax.make_jaxpr(lambda *args: products(*args))(a, b, x))
+
+    fused = products(a, b, x)
+    assert not has_dot()
+    with batched_products():
+        assert has_dot()
+        dots = products(a, b, x)
+    assert not has_dot()
+    for u, v in zip(fused, dots):
+        np.testing.assert_allclose(u, v, rtol=8 * np.finfo(np.float64).eps, atol=8 * np.finfo(np.float64).eps)
+
+
 def test_per_member_convergence_is_reported():
     """τ = exp with one member rotating by more than π per step: that member is flagged
     (singular τ), the others are unaffected and equal their own runs (trajectories and

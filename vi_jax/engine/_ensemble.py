@@ -4,9 +4,12 @@ batch-minor kernel for the underwater vehicle, and sharding of the member axis o
 Two code paths return the same :class:`~vi_jax.Solution` (leading axis = member), equal to
 ``vj.simulate`` member by member (to round-off; tests/test_ensemble.py):
 
-- ``method="vmap"`` — generic, any system: ``jax.vmap`` of ``vj.simulate``. Every 3×3 or 6×6
-  array of the step keeps its tiny dimensions innermost, which XLA:CPU vectorises poorly, and a
-  Newton ``while_loop`` under ``vmap`` runs until the slowest member has converged.
+- ``method="vmap"`` — generic, any system: ``jax.vmap`` of ``vj.simulate``'s DEP program. On
+  CPU its small products are traced as batched dots (``batched_products``: 1.8–1.9× a plain
+  ``jax.vmap(vj.simulate)``, whose fused elementwise products suit single trajectories;
+  ``benchmarks/ensemble_vs_vmap.py``). Every 3×3 or 6×6 array keeps its tiny dimensions
+  innermost, which XLA:CPU vectorises poorly, and a Newton ``while_loop`` under ``vmap`` runs
+  until the slowest member has converged.
 - ``method="batched"`` — specialised: :class:`~vi_jax.models.UnderwaterVehicle` with the paper's
   first-order rule (``order=1``, seed 000 eqs. 73–74 with 88 for Cayley, 97 for exp). Vectors
   and matrices are tuples of *component arrays* of shape (members,), so every operation of a
@@ -45,7 +48,8 @@ from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
 from ..discrete._composition import composition_coefficients
-from ._simulate import NewtonFailure, Solution, _default_rtol, _simulate_loop, simulate, validate_scheme
+from ..lie._small import batched_products
+from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, scan_program, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
@@ -258,13 +262,24 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
 
         return vehicle_chunked(dynamic, static, axes, n_members, chunk, kernel)
 
-    def one(system, x0):
-        return simulate(
-            system, x0, h, n_saved * save_every, scheme=scheme, tau=tau, order=order, save_every=save_every,
-            throw=False, rtol=rtol, max_newton_iterations=max_iterations, checkpoint=checkpoint,
-        )
+    if scheme == "splitting":
+        def one(system, x0):
+            return simulate(system, x0, h, n_saved * save_every, scheme=scheme, order=order, save_every=save_every, throw=False, checkpoint=checkpoint)
+    else:
+        rule, gammas = composition_coefficients(order)
 
-    return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
+        def one(system, x0):
+            return scan_program(
+                system, _cast(x0, h.dtype), h, n_saved, tau=tau, rule=rule, gammas=gammas, save_every=save_every,
+                rtol=rtol, max_iter=max_iterations, checkpoint=checkpoint,
+            )
+
+    with batched_products(chunk is not None):
+        return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
+
+
+def _cast(x0, dtype):
+    return jax.tree.map(lambda x: jnp.asarray(x, dtype), x0)
 
 
 @functools.partial(jax.jit, static_argnums=1)
@@ -291,12 +306,13 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
     rule, gammas = composition_coefficients(order)
 
     def one(system, x0):
-        x0 = jax.tree.map(lambda x: jnp.asarray(x, h.dtype), x0)
-        return _simulate_loop(
-            system, x0, h, n_saved, save_every, capacity=capacity, tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_iterations
+        return loop_program(
+            system, _cast(x0, h.dtype), h, n_saved, save_every, capacity=capacity, tau=tau, rule=rule, gammas=gammas,
+            rtol=rtol, max_iter=max_iterations,
         )
 
-    return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(*eqx.combine(dynamic, static))
+    with batched_products(chunk is not None):
+        return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(*eqx.combine(dynamic, static))
 
 
 def _pad_members(x, size):

@@ -177,18 +177,25 @@ def _initial(system, x0):
     return legendre_initial_state(system, x0.g, x0.xi, x0.q, x0.qdot)
 
 
-@eqx.filter_jit
 def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rtol, max_iter, checkpoint):
+    """The DEP run with static step counts (not jitted: ``vj.ensemble`` traces it under its
+    own ``vmap``)."""
     state0 = _initial(system, x0)
     _, saved, stats = advance_scan(system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter, checkpoint)
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
-@eqx.filter_jit
 def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
+    """The DEP run with traced step counts, ``capacity`` saved-node rows (not jitted)."""
     state0 = _initial(system, x0)
     _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
+
+
+scan_program, loop_program = _simulate_scan, _simulate_loop
+# Jitted under the same names (compile logs and tests/test_program_reuse.py name them).
+_simulate_scan = eqx.filter_jit(_simulate_scan)
+_simulate_loop = eqx.filter_jit(_simulate_loop)
 
 
 _initial_jit = eqx.filter_jit(_initial)
