@@ -1,5 +1,6 @@
 """An ensemble sharded over four (forced host) CPU devices equals the single-device run, for
-the batched vehicle kernel and for the generic vmap path.
+the batched vehicle kernel and for the generic vmap path, and a concrete sharded run of another
+length (same saved-node capacity) compiles nothing new.
 
 The device count must be fixed before JAX initialises, so the check runs in a fresh Python
 process with ``XLA_FLAGS=--xla_force_host_platform_device_count=4``.
@@ -14,16 +15,24 @@ import textwrap
 SCRIPT = textwrap.dedent(
     """
     import json
+    import logging
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
     import vi_jax as vj
     from vi_jax.engine._ensemble import ensemble, vary
 
+    MESSAGES = []  # jax logs every compile at DEBUG level
+    class Collect(logging.Handler):
+        def emit(self, record):
+            MESSAGES.append(record.getMessage())
+    logging.getLogger("jax").addHandler(Collect())
+    logging.getLogger("jax").setLevel(logging.DEBUG)
+
     assert jax.device_count() == 4, jax.devices()
     mesh = jax.make_mesh((4,), ("members",))
     rng = np.random.default_rng(0)
-    report = {}
+    report, recompiled = {}, []
     vehicle, body = vj.models.UnderwaterVehicle(), vj.models.RigidBody()
     cases = (
         ("batched", 7, vary(vehicle, mass=123.8 + rng.uniform(-5, 5, size=7)), vehicle.initial_state()),
@@ -45,7 +54,13 @@ SCRIPT = textwrap.dedent(
                 max_rel=float(np.max(np.abs(a - b)) / max(np.max(np.abs(a)), 1e-300)),
             )
         fields["newton_residual_max"] = float(np.max(np.asarray(sharded.newton_residual)))
-        report[f"{method}-{n}"] = dict(fields=fields, devices=len(sharded.g.sharding.device_set))
+        MESSAGES.clear()  # 24 saved nodes below: the same capacity (32) as the 20 above
+        longer = ensemble(models, states, 0.02, 120, mesh=mesh, **kwargs)
+        recompiled += [m for m in MESSAGES if m.startswith("Compiling jit(_sharded)")]
+        report[f"{method}-{n}"] = dict(
+            fields=fields, devices=len(sharded.g.sharding.device_set), longer_rows=longer.q.shape[1] if longer.q is not None else longer.g.shape[1],
+        )
+    report["recompiled"] = recompiled
     print(json.dumps(report))
     """
 )
@@ -57,7 +72,10 @@ def test_sharded_ensemble_equals_single_device():
     run = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
     report = json.loads(run.stdout.strip().splitlines()[-1])
+    # Concrete runs take traced step counts: another n_steps with the same capacity compiles nothing.
+    assert report.pop("recompiled") == []
     for case in report.values():
+        assert case["longer_rows"] == 25
         assert all(f["shapes_equal"] for k, f in case["fields"].items() if k != "newton_residual_max")
         assert case["fields"]["newton_residual_max"] <= 64 * 2.0**-52
         assert case["fields"]["newton_iterations"]["identical"] and case["fields"]["result"]["identical"]

@@ -226,18 +226,18 @@ def ensemble(
 
     # On concrete inputs the DEP paths take the step counts as traced integers: one program per
     # saved-node capacity (a power of two), not per n_steps.
-    looped = mesh is None and scheme == "dep" and val.is_concrete((dynamic, h))
+    looped = scheme == "dep" and val.is_concrete((dynamic, h))
 
     def run(dynamic, n_members):
         if looped:
             n_saved = options["n_saved"]
-            count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+            counts = tuple(jnp.asarray(n, jnp.int32) for n in (n_saved, save_every))
             loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk")}
-            capacity = ensemble_capacity(n_saved)
-            sol = _run_loop(
-                dynamic, static, axes, h, count(n_saved), count(save_every),
-                n_members=n_members, capacity=capacity, **loop_options,
-            )
+            loop_options["capacity"] = capacity = ensemble_capacity(n_saved)
+            if mesh is None:
+                sol = _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **loop_options)
+            else:
+                sol = _run_sharded(dynamic, static, axes, h, mesh, n_members, loop_options, counts)
             return sol if capacity == n_saved else _first_nodes(sol, n_saved + 1)
         if mesh is None:
             return _run(dynamic, static, axes, h, n_members=n_members, **options)
@@ -322,9 +322,10 @@ def _pad_members(x, size):
     return jnp.concatenate([x, jnp.repeat(x[-1:], size - x.shape[0], axis=0)])
 
 
-def _run_sharded(dynamic, static, axes, h, mesh, n_members, options):
+def _run_sharded(dynamic, static, axes, h, mesh, n_members, options, counts=()):
     """Pad the members to a multiple of the devices, split them over ``mesh`` and run each
-    share independently (``jax.shard_map``: no communication between devices)."""
+    share independently (``jax.shard_map``: no communication between devices); with traced
+    ``counts`` (n_saved, save_every) each share runs ``_run_loop``, else ``_run``."""
     n_dev = mesh.devices.size
     padded = -(-n_members // n_dev) * n_dev
     spec = PartitionSpec(mesh.axis_names)
@@ -337,19 +338,25 @@ def _run_sharded(dynamic, static, axes, h, mesh, n_members, options):
     in_specs = jax.tree.map(lambda ax, x: None if x is None else (PartitionSpec() if ax is None else spec), axes, dynamic, is_leaf=is_none)
     place = lambda ps, x: jax.device_put(x, NamedSharding(mesh, ps))  # noqa: E731
     dynamic = jax.tree.map(place, in_specs, dynamic, is_leaf=lambda x: isinstance(x, PartitionSpec))
-    sol = _sharded(dynamic, place(PartitionSpec(), h), static=static, axes=axes, mesh=mesh, in_specs=in_specs, n_local=padded // n_dev, **options)
+    counts = tuple(place(PartitionSpec(), c) for c in counts)
+    sol = _sharded(
+        dynamic, place(PartitionSpec(), h), counts, static=static, axes=axes, mesh=mesh, in_specs=in_specs, n_local=padded // n_dev, **options
+    )
     if padded == n_members:
         return sol
     return jax.tree.map(lambda x: place(PartitionSpec(), x)[:n_members], sol)
 
 
 @eqx.filter_jit
-def _sharded(dynamic, h, *, static, axes, mesh, in_specs, n_local, **options):
-    def local(dynamic, h):
+def _sharded(dynamic, h, counts, *, static, axes, mesh, in_specs, n_local, **options):
+    def local(dynamic, h, counts):
+        if counts:
+            return _run_loop(dynamic, static, axes, h, *counts, n_members=n_local, **options)
         return _run(dynamic, static, axes, h, n_members=n_local, **options)
 
     spec = PartitionSpec(mesh.axis_names)
-    return jax.shard_map(local, mesh=mesh, in_specs=(in_specs, PartitionSpec()), out_specs=spec, check_vma=False)(dynamic, h)
+    in_specs = (in_specs, PartitionSpec(), tuple(PartitionSpec() for _ in counts))
+    return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=spec, check_vma=False)(dynamic, h, counts)
 
 
 PROGRESS_GROUP = 64  # members per call at least: the vectorised paths lose throughput on fewer
