@@ -96,3 +96,22 @@ def test_ensemble_runs_of_different_lengths_share_one_program(caplog):
         assert compiled == [], method
         assert other.q.shape == (3, 13, 3)
         np.testing.assert_array_equal(np.asarray(other.t[0]), 0.06 * np.arange(13))
+
+
+def test_splitting_runs_of_different_lengths_share_one_program(caplog):
+    """The splitting on concrete inputs takes traced step counts as the DEP scheme does: equal to
+    the traced run (static lengths, what ``jit`` runs) to round-off, and another length or saving
+    interval with the same capacity compiles nothing."""
+    model = vj.models.HeavyTop()
+    x0 = model.initial_state()
+    looped = vj.simulate(model, x0, 0.05, 200, scheme="splitting", order=4, save_every=4)
+    traced = eqx.filter_jit(lambda m, x: vj.simulate(m, x, 0.05, 200, scheme="splitting", order=4, save_every=4))(model, x0)
+    for name in ("g", "M", "xi", "energy", "kelvin_noether", "t"):
+        ours, theirs = np.asarray(getattr(looped, name)), np.asarray(getattr(traced, name))
+        assert ours.shape == theirs.shape == (51,) + ours.shape[1:], name
+        assert np.max(np.abs(ours - theirs)) <= 1e-12 * max(np.max(np.abs(theirs)), 1.0), name
+    with jax.log_compiles(), caplog.at_level(logging.DEBUG, logger="jax"):
+        other = vj.simulate(model, x0, 0.05, 300, scheme="splitting", order=4, save_every=3)
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_run_loop)")]
+    assert compiled == []
+    assert other.g.shape[0] == 101

@@ -259,6 +259,22 @@ def advance(parts, method, arrangement, h, phase, n_saved, save_every, checkpoin
     return scan_saved_nodes(node, phase, n_saved, checkpoint)[1]
 
 
+def advance_loop(parts, method, arrangement, h, phase, n_saved, save_every, capacity):
+    """:func:`advance` with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program
+    for every run length (forward only). Rows past ``n_saved`` repeat the initial state."""
+    flows = piece_flows(parts)
+    pieces = arrange(tuple(flows), arrangement)
+    table = stage_table(method)
+    rows = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), phase)
+
+    def node(k, carry):
+        s, rows = carry
+        s = _steps(flows, pieces, table, h, _first(flows, pieces, float(table[0, 0]), h, s), save_every)
+        return s, jax.tree.map(lambda buf, x: buf.at[k].set(x), rows, s)
+
+    return jax.lax.fori_loop(0, n_saved, node, (phase, rows))[1]
+
+
 def initial_phase(parts, x0: State):
     """The principal-frame state of the continuous initial data."""
     state0 = splitting_initial_state(parts.system, x0)

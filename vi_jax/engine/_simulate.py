@@ -126,7 +126,7 @@ def simulate(
                 sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=False, **options)
             else:
                 with placement(device):
-                    sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=progress, **options)
+                    sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=progress, looped=True, **options)
         warn_if_meaningless(sol.energy, "simulate")
         return sol
     rule, gammas = composition_coefficients(order)

@@ -6,7 +6,8 @@ import jax
 import jax.numpy as jnp
 
 from .._system import State
-from ..discrete._splitting import advance, initial_phase, nodes, resolve, separable_parts
+from .._saved_nodes import first_rows, saved_capacity
+from ..discrete._splitting import advance, advance_loop, initial_phase, nodes, resolve, separable_parts
 from ..solvers import NOT_SEPARABLE, SUCCESS
 from ._solution import Solution, node_invariants
 
@@ -54,6 +55,13 @@ def _run(parts, x0, h, n_saved, save_every, method, arrangement, checkpoint):
     return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
 
 
+@eqx.filter_jit
+def _run_loop(parts, x0, h, n_saved, save_every, capacity, method, arrangement):
+    phase0 = initial_phase(parts, x0)
+    saved = advance_loop(parts, method, arrangement, h, phase0, n_saved, save_every, capacity)
+    return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
+
+
 _initial_jit = eqx.filter_jit(initial_phase)
 _advance_jit = eqx.filter_jit(advance)
 
@@ -81,10 +89,17 @@ def _with_progress(parts, x0, h, n_saved, save_every, method, arrangement):
     return _assemble(parts, phase0, saved, h, save_every)
 
 
-def simulate_splitting(system, x0: State, h, n_saved, save_every, *, order, method, arrangement, checkpoint, progress, dtype, throw):
-    """The splitting run of ``order`` as a :class:`Solution` (inputs validated by the caller)."""
+def simulate_splitting(
+    system, x0: State, h, n_saved, save_every, *, order, method, arrangement, checkpoint, progress, dtype, throw, looped=False,
+):
+    """The splitting run of ``order`` as a :class:`Solution` (inputs validated by the caller).
+    ``looped`` (concrete inputs): traced step counts, one program per saved-node capacity."""
     method, arrangement = resolve(order, method, arrangement)
     parts = separable_parts(system, dtype, throw=throw)
     if progress:
         return _with_progress(parts, x0, h, n_saved, save_every, method, arrangement)
+    if looped:
+        count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+        sol = _run_loop(parts, x0, h, count(n_saved), count(save_every), saved_capacity(n_saved), method, arrangement)
+        return first_rows(sol, n_saved + 1)
     return _run(parts, x0, h, n_saved, save_every, method, arrangement, bool(checkpoint))
