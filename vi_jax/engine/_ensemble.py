@@ -54,7 +54,8 @@ from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
-from ._vehicle_kernel import CHUNK as CHUNK, _vehicle_batched, _vehicle_loop, vehicle_chunked
+from ._member_split import CHUNK as CHUNK, in_chunks, pad_members
+from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
 
 METHODS = ("auto", "batched", "vmap")
 
@@ -260,7 +261,7 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         def kernel(system, x0, n):
             return _vehicle_batched(system, x0, h, n_saved, save_every, tau.name, rtol, max_iterations, n, checkpoint)
 
-        return vehicle_chunked(dynamic, static, axes, n_members, chunk, kernel)
+        return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
 
     if scheme == "splitting":
         def one(system, x0):
@@ -302,7 +303,7 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
         def kernel(system, x0, n):
             return _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau.name, rtol, max_iterations, n)
 
-        return vehicle_chunked(dynamic, static, axes, n_members, chunk, kernel)
+        return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
 
     def one(system, x0):
@@ -315,13 +316,6 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
         return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(*eqx.combine(dynamic, static))
 
 
-def _pad_members(x, size):
-    """``x`` (members first) with copies of its last member appended up to ``size`` members."""
-    if x.shape[0] == size:
-        return x
-    return jnp.concatenate([x, jnp.repeat(x[-1:], size - x.shape[0], axis=0)])
-
-
 def _run_sharded(dynamic, static, axes, h, mesh, n_members, options, counts=()):
     """Pad the members to a multiple of the devices, split them over ``mesh`` and run each
     share independently (``jax.shard_map``: no communication between devices); with traced
@@ -332,7 +326,7 @@ def _run_sharded(dynamic, static, axes, h, mesh, n_members, options, counts=()):
     is_none = lambda x: x is None  # noqa: E731
 
     def pad(ax, x):
-        return x if ax is None or x is None else _pad_members(x, padded)
+        return x if ax is None or x is None else pad_members(x, padded)
 
     dynamic = jax.tree.map(pad, axes, dynamic, is_leaf=is_none)
     in_specs = jax.tree.map(lambda ax, x: None if x is None else (PartitionSpec() if ax is None else spec), axes, dynamic, is_leaf=is_none)
@@ -374,7 +368,7 @@ def _run_in_groups(run, dynamic, axes, n_members, n_steps):
         def take(ax, x):
             if ax is None or x is None:
                 return x
-            return _pad_members(jnp.asarray(np.asarray(x)[start : start + size]), size)  # sliced on the host
+            return pad_members(jnp.asarray(np.asarray(x)[start : start + size]), size)  # sliced on the host
 
         return jax.tree.map(take, axes, dynamic, is_leaf=is_none)
 

@@ -1,0 +1,45 @@
+"""Splitting an ensemble's member axis: chunks of members run one after another (the CPU plan of
+the batched kernel) and padding to a multiple of a group size (devices, progress groups)."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+def pad_members(x, size):
+    """``x`` (members first) with copies of its last member appended up to ``size`` members."""
+    if x.shape[0] == size:
+        return x
+    return jnp.concatenate([x, jnp.repeat(x[-1:], size - x.shape[0], axis=0)])
+
+
+CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/ensemble.py)
+
+
+def in_chunks(dynamic, static, axes, n_members, chunk, kernel):
+    """``kernel(system, x0, n_members)`` (the vehicle kernel with the run's other arguments bound)
+    over chunks of ``chunk`` members, one chunk after the other (None: all members at once). On
+    CPU (``CHUNK``) the working set of a chunk stays in cache, and XLA:CPU runs a small loop as
+    one kernel rather than one dispatch per fused operation (several times faster per member); a
+    GPU wants the whole batch in every kernel (``benchmarks/ensemble_gpu.py``)."""
+    if chunk is None or n_members <= chunk:
+        return kernel(*eqx.combine(dynamic, static), n_members)
+    n_chunks = -(-n_members // chunk)
+    padded = n_chunks * chunk
+    is_none = lambda x: x is None  # noqa: E731
+
+    def split(ax, x):
+        if ax is None or x is None:
+            return x
+        return pad_members(x, padded).reshape((n_chunks, chunk) + x.shape[1:])
+
+    batched = jax.tree.map(split, axes, dynamic, is_leaf=is_none)
+    shared = jax.tree.map(lambda ax, x: x if ax is None else None, axes, dynamic, is_leaf=is_none)
+    chunked = jax.tree.map(lambda ax, x: None if ax is None else x, axes, batched, is_leaf=is_none)
+
+    def one(members):
+        merged = jax.tree.map(lambda a, b: a if b is None else b, shared, members, is_leaf=is_none)
+        return kernel(*eqx.combine(merged, static), chunk)
+
+    out = jax.lax.map(one, chunked)
+    return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:n_members], out)
