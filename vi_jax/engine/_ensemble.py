@@ -263,19 +263,20 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
 
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
 
-    if scheme == "splitting":
-        def one(system, x0):
+    if scheme == "splitting":  # jitted pieces, cached as for single runs: no dots (see below)
+        def split(system, x0):
             return simulate(system, x0, h, n_saved * save_every, scheme=scheme, order=order, save_every=save_every, throw=False, checkpoint=checkpoint)
-    else:
-        rule, gammas = composition_coefficients(order)
 
-        def one(system, x0):
-            return scan_program(
-                system, _cast(x0, h.dtype), h, n_saved, tau=tau, rule=rule, gammas=gammas, save_every=save_every,
-                rtol=rtol, max_iter=max_iterations, checkpoint=checkpoint,
-            )
+        return eqx.filter_vmap(split, in_axes=axes, axis_size=n_members)(system, x0)
+    rule, gammas = composition_coefficients(order)
 
-    with batched_products(chunk is not None):
+    def one(system, x0):
+        return scan_program(
+            system, _cast(x0, h.dtype), h, n_saved, tau=tau, rule=rule, gammas=gammas, save_every=save_every,
+            rtol=rtol, max_iter=max_iterations, checkpoint=checkpoint,
+        )
+
+    with batched_products(chunk is not None):  # scan_program is traced afresh: no cached inner jit
         return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
 
 
