@@ -1,6 +1,8 @@
 """A trajectory's saved nodes, for every scheme: scanned in blocks (under transformations), or
 written into a buffer of fixed capacity by a loop with traced counts (concrete runs)."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -31,6 +33,15 @@ def scan_saved_nodes(node, state, length, checkpoint=False):
         state, out = jax.lax.scan(node, state, None, length=rest)
         pieces.append(out)
     return state, jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
+
+
+def rematerialised_steps(steps, carry, n):
+    """``steps(carry, k) -> carry`` for ``n`` steps as ⌊√n⌋-step blocks rematerialised in
+    reverse mode (then the rest): it stores O(√n) step residuals between two saved nodes."""
+    inner = math.isqrt(n)
+    outer, rest = divmod(n, inner)
+    carry, _ = jax.lax.scan(jax.checkpoint(lambda c, _: (steps(c, inner), None)), carry, None, length=outer)
+    return steps(carry, rest) if rest else carry
 
 
 MIN_CAPACITY = 1024

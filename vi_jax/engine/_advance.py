@@ -11,15 +11,13 @@
   compositions are traced too (:class:`TracedComposition`): orders 2, 4 and 6 share one program.
 """
 
-import math
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._saved_nodes import SAVE_BLOCK, scan_saved_nodes
+from .._saved_nodes import SAVE_BLOCK, rematerialised_steps, scan_saved_nodes
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
 
@@ -100,18 +98,14 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         state, stats = jax.lax.scan(one_step, state, None, length=n)
         return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
 
+    def worst_steps(carry, n):  # the worst statistics so far, carried
+        state, more = steps(carry[0], n)
+        return state, jax.tree.map(jnp.maximum, carry[1], more)
+
     def node_steps(state):
         if not checkpoint or save_every <= SAVE_BLOCK:
             return steps(state, save_every)
-        # √save_every rematerialised blocks: reverse mode stores O(√save_every) step residuals.
-        inner = math.isqrt(save_every)
-        outer, rest = divmod(save_every, inner)
-        state, stats = jax.lax.scan(jax.checkpoint(lambda s, _: steps(s, inner)), state, None, length=outer)
-        stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
-        if rest:
-            state, more = steps(state, rest)
-            stats = jax.tree.map(jnp.maximum, stats, more)
-        return state, stats
+        return rematerialised_steps(worst_steps, (state, StepStats.zeros(state.z.dtype)), save_every)
 
     def node(state, _):
         state, stats = one_step(state, None) if save_every == 1 else node_steps(state)

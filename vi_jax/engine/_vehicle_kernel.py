@@ -5,14 +5,12 @@ fuses a whole Newton iteration into one vectorised loop. The Newton machinery (J
 forward mode, unrolled LU, masked fallback iterations, implicit-function gradients) is generic in
 the residual; only the step itself is written for the vehicle."""
 
-import math
-
 import jax
 import jax.numpy as jnp
 
 from ..solvers import MAX_ITERATIONS, NONFINITE, SINGULAR_DIFFERENCE_MAP, SUCCESS, CHORD_ITERATIONS
 from ..lie import _series
-from .._saved_nodes import SAVE_BLOCK, scan_saved_nodes
+from .._saved_nodes import SAVE_BLOCK, rematerialised_steps, scan_saved_nodes
 from ._solution import Solution
 
 
@@ -316,10 +314,7 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
         if not checkpoint or save_every <= SAVE_BLOCK:
             carry = worst_steps(carry, save_every)
         else:
-            inner = math.isqrt(save_every)
-            outer, rest = divmod(save_every, inner)
-            carry, _ = jax.lax.scan(jax.checkpoint(lambda c, _: (worst_steps(c, inner), None)), carry, None, length=outer)
-            carry = worst_steps(carry, rest) if rest else carry
+            carry = rematerialised_steps(worst_steps, carry, save_every)
         return carry[0], _pack(*carry, dtype)
 
     _, (saved, stats) = scan_saved_nodes(node, state0, n_saved, checkpoint)
