@@ -24,29 +24,16 @@ Rows, written to ``--out`` after every measurement (so a run cut short keeps wha
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from _timing import time_compiled  # noqa: E402
 CASES = {"vehicle1": ("vehicle", 1), "vehicle2": ("vehicle", 2), "heavy_top1": ("heavy_top", 1), "heavy_top2": ("heavy_top", 2)}
 STEP = {"vehicle": 0.01, "heavy_top": 0.005}
-
-
-def _median_time(fn, arg, repeats=5):
-    import jax
-
-    start = time.perf_counter()
-    jax.block_until_ready(fn(arg))
-    first = time.perf_counter() - start
-    samples = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(arg))
-        samples.append(time.perf_counter() - start)
-    return first, statistics.median(samples)
 
 
 def _cast(tree, dtype):
@@ -133,7 +120,7 @@ def measure(args):
                 n_steps = args.steps or int(min(1000, max(50, 2.5e8 // members)))
                 states = _states(x0, members, dtype)
                 fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
-                first, median = _median_time(fn, states)
+                first, median, _ = time_compiled(fn, states, repeats=5)
                 last_xi, converged, g4, xi4 = fn(states)
                 converged = float(converged)
                 row = dict(kind="ensemble", case=case, dtype=dtype_name, members=members, steps=n_steps,
@@ -171,7 +158,7 @@ def measure(args):
 
             return jax.vmap(one)(omegas)
 
-        first, median = _median_time(hand, states.xi)
+        first, median, _ = time_compiled(hand, states.xi, repeats=5)
         out["rows"].append(dict(kind="peer", case="vehicle1", implementation="plain vmap, hand step", dtype="float64",
                                 members=members, steps=n_steps, compile_and_first_s=first, median_s=median, rate=members * n_steps / median))
         print(f"peer plain vmap hand step {members} members: {members * n_steps / median / 1e9:.3f} G/s", flush=True)
@@ -180,7 +167,7 @@ def measure(args):
             real = _ensemble.target_platform
             _ensemble.target_platform = lambda mesh=None: "cpu"  # the CPU plan: chunks of 64 members
             try:
-                first, median = _median_time(final(model, 0.01, n_steps), states)
+                first, median, _ = time_compiled(final(model, 0.01, n_steps), states, repeats=5)
             finally:
                 _ensemble.target_platform = real
             out["rows"].append(dict(kind="peer", case="vehicle1", implementation="batched kernel, CPU plan (chunks of 64)", dtype="float64",
@@ -204,7 +191,7 @@ def single_one(n_steps, where):
     model = vj.models.UnderwaterVehicle()
     x0 = model.initial_state()
     device = "cpu" if where == "cpu" else None
-    first, median = _median_time(lambda x: vj.simulate(model, x, 0.01, n_steps, device=device).q, x0)
+    first, median, _ = time_compiled(lambda x: vj.simulate(model, x, 0.01, n_steps, device=device).q, x0, repeats=5)
     return dict(kind="single", where=where, device=str(jax.devices("cpu" if where == "cpu" else None)[0]),
                 steps=n_steps, compile_and_first_s=first, median_s=median, us_per_step=median / n_steps * 1e6)
 
