@@ -225,9 +225,9 @@ def ensemble(
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
 
-    # On concrete inputs the DEP paths take the step counts as traced integers: one program per
-    # saved-node capacity (a power of two), not per n_steps.
-    looped = scheme == "dep" and val.is_concrete((dynamic, h))
+    # Concrete inputs: the DEP step counts are traced, one program per saved-node capacity.
+    concrete = val.is_concrete((dynamic, h))
+    looped = scheme == "dep" and concrete
 
     def run(dynamic, n_members):
         if looped:
@@ -245,7 +245,7 @@ def ensemble(
         return _run_sharded(dynamic, static, axes, h, mesh, n_members, options)
 
     with full_precision():
-        if progress and val.is_concrete((dynamic, h)):
+        if progress and concrete:
             sol = _run_in_groups(run, dynamic, axes, n_members, n_steps)
         else:
             sol = run(dynamic, n_members)
