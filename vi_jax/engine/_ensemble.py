@@ -5,7 +5,7 @@ Two code paths return the same :class:`~vi_jax.Solution` (leading axis = member)
 ``vj.simulate`` member by member (to round-off; tests/test_ensemble.py):
 
 - ``method="vmap"`` — generic, any system: ``jax.vmap`` of ``vj.simulate``'s DEP program. On
-  CPU its small products are traced as batched dots (``batched_products``: 1.8–1.9× a plain
+  CPU its small products are traced as batched dots (``batched_products``: 1.7–2.2× a plain
   ``jax.vmap(vj.simulate)``, whose fused elementwise products suit single trajectories;
   ``benchmarks/ensemble_vs_vmap.py``). Every 3×3 or 6×6 array keeps its tiny dimensions
   innermost, which XLA:CPU vectorises poorly, and a Newton ``while_loop`` under ``vmap`` runs
