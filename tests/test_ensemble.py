@@ -202,11 +202,6 @@ BAD = [
     (dict(x0_axes=1), r"x0_axes: expected 0 \(batched\), None \(shared\)"),
     (dict(x0_axes=None), r"system_axes, x0_axes: expected at least one batched argument"),
     (dict(system=vary(MODEL, mass=np.full(4, 120.0)), system_axes=0), r"batched leaves must share one member count"),
-    (dict(method="batched", order=2), r"method: 'batched' needs an UnderwaterVehicle, order=1"),
-    (
-        dict(method="batched", system=vj.models.RigidBody(), x0=vary(vj.models.RigidBody().initial_state(), xi=np.ones((2, 3)))),
-        r"method: 'batched' needs an UnderwaterVehicle",
-    ),
     (dict(mesh="cpu"), r"mesh: expected a jax.sharding.Mesh, got str"),
     (dict(h=-1.0), r"h: expected a finite number > 0"),
     (dict(x0=vary(X0, g=np.stack([np.eye(3), 2 * np.eye(3), np.eye(3), np.eye(3), np.eye(3)]))), r"x0.g: expected elements of SO3"),

@@ -1,25 +1,25 @@
-"""Ensembles: :func:`vi_jax.simulate` over a batch of initial states and/or parameters, a fast
-batch-minor kernel for the underwater vehicle, and sharding of the member axis over devices.
+"""Ensembles: :func:`vi_jax.simulate` over a batch of initial states and/or parameters, with
+the members on the vectorised axis, and sharding of the member axis over devices.
 
-Two code paths return the same :class:`~vi_jax.Solution` (leading axis = member), equal to
-``vj.simulate`` member by member (to round-off; tests/test_ensemble.py):
+The code paths return the same :class:`~vi_jax.Solution` (leading axis = member), equal to
+``vj.simulate`` member by member (to round-off; tests/test_ensemble.py,
+tests/test_generated_step.py):
 
-- ``method="vmap"`` — generic, any system: ``jax.vmap`` of ``vj.simulate``'s DEP program. On
-  CPU its small products are traced as batched dots (``batched_products``: 1.7–2.2× a plain
-  ``jax.vmap(vj.simulate)``, whose fused elementwise products suit single trajectories;
-  ``benchmarks/ensemble_vs_vmap.py``). Every 3×3 or 6×6 array keeps its tiny dimensions
-  innermost, which XLA:CPU vectorises poorly, and a Newton ``while_loop`` under ``vmap`` runs
-  until the slowest member has converged.
-- ``method="batched"`` — specialised: :class:`~vi_jax.models.UnderwaterVehicle` with the paper's
-  first-order rule (``order=1``, seed 000 eqs. 73–74 with 88 for Cayley, 97 for exp). Vectors
-  and matrices are tuples of *component arrays* of shape (members,), so every operation of a
-  step is an elementwise loop over the members and XLA fuses a whole Newton iteration into one
-  vectorised loop. The Newton machinery (Jacobian by forward mode, unrolled LU, masked fallback
-  iterations, implicit-function gradients) is generic in the residual; only the step itself is
-  written for the vehicle. The plan follows the platform (:func:`target_platform`): on CPU the
-  members go through chunks of ``CHUNK`` one after another (cache-sized); on a GPU the whole
-  batch is in every kernel (H100: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against
-  1.5 M with the CPU plan; README, ``benchmarks/ensemble_gpu.py``).
+- ``method="batched"`` (the default through ``"auto"``) — the step generated from the scene's
+  Lagrangian (:mod:`._generated_step`), any scene, τ and order: ``vj.simulate``'s DEP step run on
+  *component arrays* of shape (members,), so every operation of a step is an elementwise loop
+  over the members and XLA fuses a whole Newton iteration into one vectorised loop. For the
+  :class:`~vi_jax.models.UnderwaterVehicle` at ``order=1`` a hand-written kernel of the
+  paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still faster, and is used there. The plan
+  follows the platform (:func:`target_platform`): on CPU the members go through chunks of
+  ``CHUNK`` one after another (cache-sized); on a GPU the whole batch is in every kernel (H100,
+  vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
+  CPU plan; README, ``benchmarks/ensemble_gpu.py``).
+- ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products
+  are traced as batched dots (``batched_products``). Every 3×3 or 6×6 array keeps its tiny
+  dimensions innermost, which XLA:CPU vectorises poorly.
+
+Speeds: ``python benchmarks/ensemble_vs_vmap.py [--fast-loops]``.
 
 Newton in both paths follows ``vj.simulate`` (one Newton step, two chord steps, a check, a final
 correction): the fallback iterations run only while some member has not converged, and only
@@ -54,46 +54,14 @@ from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
-from ._member_split import CHUNK as CHUNK, in_chunks, pad_members
+from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
+from ._generated_step import generated_loop, generated_scan, generated_solution
 from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
 
 METHODS = ("auto", "batched", "vmap")
 
 
 # --- the public API ----------------------------------------------------------------------
-
-
-def _leaf_axes(name, tree, axes):
-    """The axis (0 or None) of every leaf of ``tree`` from a prefix ``axes`` (as jax.vmap)."""
-
-    def expand(ax, sub):
-        if ax is not None and (isinstance(ax, bool) or ax != 0):
-            raise ValueError(f"{name}: expected 0 (batched), None (shared) or a pytree prefix of them, got {ax!r}")
-        return jax.tree.map(lambda leaf: ax if eqx.is_array(leaf) else None, sub)
-
-    try:
-        return jax.tree.map(expand, axes, tree, is_leaf=lambda x: x is None)
-    except (TypeError, ValueError) as err:
-        if str(err).startswith(name):
-            raise
-        raise ValueError(f"{name}: expected 0, None or a pytree prefix of the argument; {err}") from err
-
-
-def _member_counts(name, tree, axes):
-    counts = []
-
-    def visit(ax, leaf):
-        if ax == 0:
-            if jnp.ndim(leaf) == 0:
-                raise ValueError(f"{name}: a batched leaf needs a leading member axis, got a scalar")
-            counts.append(jnp.shape(leaf)[0])
-
-    jax.tree.map(visit, axes, tree, is_leaf=lambda x: x is None)
-    return counts
-
-
-def _take(tree, axes, index):
-    return jax.tree.map(lambda ax, x: x if ax is None else x[index], axes, tree, is_leaf=lambda x: x is None)
 
 
 def vary(tree, **fields):
@@ -128,7 +96,7 @@ def member_converged(sol: Solution):
     return jnp.all(sol.result == SUCCESS, axis=-1)
 
 
-def _batched_supported(system, tau, order):
+def _vehicle_kernel_applies(system, tau, order):
     return isinstance(system, UnderwaterVehicle) and order == 1 and tau.name in ("cayley", "exp")
 
 
@@ -156,8 +124,9 @@ def ensemble(
 
     ``system_axes`` / ``x0_axes``: 0 where the argument carries a leading member axis, None
     where it is shared, or a pytree prefix of such (as ``jax.vmap``); :func:`vary` builds
-    batched arguments. ``method``: "batched" (the fast vehicle kernel, order 1), "vmap"
-    (generic) or "auto" (batched when it applies). ``mesh``: a ``jax.sharding.Mesh``; members
+    batched arguments. ``method``: "batched" (the generated batched step; for the vehicle at
+    order 1 its hand-written kernel), "vmap" (``jax.vmap`` of the DEP program) or "auto"
+    (batched). ``mesh``: a ``jax.sharding.Mesh``; members
     are split over all its devices (padded to a multiple of their number). The other keywords
     are ``vj.simulate``'s (``checkpoint=True`` by default, on both paths: reverse mode
     rematerialises, memory grows with saved nodes, not steps; ``scheme="splitting"``:
@@ -171,12 +140,12 @@ def ensemble(
     """
     val.check_choice("method", method, METHODS)
     if scheme == "splitting" and method == "batched":
-        raise ValueError("method: 'batched' is the DEP scheme's vehicle kernel; the splitting runs as 'vmap' or 'auto'")
-    sys_axes = _leaf_axes("system_axes", system, system_axes)
-    state_axes = _leaf_axes("x0_axes", x0, x0_axes)
+        raise ValueError("method: 'batched' is the DEP scheme's generated step; the splitting runs as 'vmap' or 'auto'")
+    sys_axes = leaf_axes("system_axes", system, system_axes)
+    state_axes = leaf_axes("x0_axes", x0, x0_axes)
     counts = {
-        "system": _member_counts("system_axes", system, sys_axes),
-        "x0": _member_counts("x0_axes", x0, state_axes),
+        "system": member_counts("system_axes", system, sys_axes),
+        "x0": member_counts("x0_axes", x0, state_axes),
     }
     sizes = set(counts["system"] + counts["x0"])
     if not sizes:
@@ -190,7 +159,7 @@ def ensemble(
     if n_members < 1:
         raise ValueError("x0_axes, system_axes: expected at least one member, got 0")
     h, n_steps, save_every, tau_map, order = validate_scheme(
-        _take(system, sys_axes, 0), _take(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order
+        take_member(system, sys_axes, 0), take_member(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order
     )
     val.check_finite("system parameters", val.numeric_leaves(system))
     val.check_finite("x0", x0)
@@ -200,14 +169,9 @@ def ensemble(
             err = jnp.max(jax.vmap(G.membership_error)(jnp.reshape(x0.g, (-1,) + jnp.shape(x0.g)[-2:])))
         if not float(err) <= 1e-6:
             raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
-    if method == "batched" and scheme == "dep" and not _batched_supported(system, tau_map, order):
-        raise ValueError(
-            "method: 'batched' needs an UnderwaterVehicle, order=1 and tau 'cayley' or 'exp'; "
-            f"got {type(system).__name__}, order={order}, tau={tau_map.name!r}; use 'vmap'"
-        )
-    batched = scheme == "dep" and (
-        method == "batched" or (method == "auto" and _batched_supported(system, tau_map, order))
-    )
+    batched = None
+    if scheme == "dep" and method != "vmap":
+        batched = "vehicle" if _vehicle_kernel_applies(system, tau_map, order) else "generated"
     if mesh is not None and not isinstance(mesh, jax.sharding.Mesh):
         raise ValueError(f"mesh: expected a jax.sharding.Mesh, got {type(mesh).__name__}")
 
@@ -257,11 +221,19 @@ def ensemble(
 @eqx.filter_jit
 def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
     system, x0 = eqx.combine(dynamic, static)
-    if batched:
+    if batched == "vehicle":
         def kernel(system, x0, n):
             return _vehicle_batched(system, x0, h, n_saved, save_every, tau.name, rtol, max_iterations, n, checkpoint)
 
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
+    if batched == "generated":
+        rule, gammas = composition_coefficients(order)
+
+        def kernel(system, x0, n):
+            return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint)
+
+        nodes = in_chunks(dynamic, static, axes, n_members, chunk, kernel)
+        return generated_solution(system, axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)
 
     if scheme == "splitting":  # jitted pieces, cached as for single runs: no dots (see below)
         def split(system, x0):
@@ -300,12 +272,18 @@ def ensemble_capacity(n_saved: int) -> int:
 @eqx.filter_jit
 def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capacity, tau, order, rtol, max_iterations, batched, chunk):
     """``_run``'s DEP paths with traced ``n_saved`` (≤ ``capacity``) and ``save_every``."""
-    if batched:
+    if batched == "vehicle":
         def kernel(system, x0, n):
             return _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau.name, rtol, max_iterations, n)
 
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
+    if batched == "generated":
+        def kernel(system, x0, n):
+            return generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n)
+
+        nodes = in_chunks(dynamic, static, axes, n_members, chunk, kernel)
+        return generated_solution(eqx.combine(dynamic, static)[0], axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)
 
     def one(system, x0):
         return loop_program(

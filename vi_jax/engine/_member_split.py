@@ -1,5 +1,6 @@
-"""Splitting an ensemble's member axis: chunks of members run one after another (the CPU plan of
-the batched kernel) and padding to a multiple of a group size (devices, progress groups)."""
+"""An ensemble's member axis: which leaves carry it, chunks of members run one after another (the
+CPU plan of the batched kernels) and padding to a multiple of a group size (devices, progress
+groups)."""
 
 import equinox as eqx
 import jax
@@ -17,7 +18,7 @@ CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/en
 
 
 def in_chunks(dynamic, static, axes, n_members, chunk, kernel):
-    """``kernel(system, x0, n_members)`` (the vehicle kernel with the run's other arguments bound)
+    """``kernel(system, x0, n_members)`` (a batched kernel with the run's other arguments bound)
     over chunks of ``chunk`` members, one chunk after the other (None: all members at once). On
     CPU (``CHUNK``) the working set of a chunk stays in cache, and XLA:CPU runs a small loop as
     one kernel rather than one dispatch per fused operation (several times faster per member); a
@@ -43,3 +44,36 @@ def in_chunks(dynamic, static, axes, n_members, chunk, kernel):
 
     out = jax.lax.map(one, chunked)
     return jax.tree.map(lambda x: x.reshape((padded,) + x.shape[2:])[:n_members], out)
+
+
+def leaf_axes(name, tree, axes):
+    """The axis (0 or None) of every leaf of ``tree`` from a prefix ``axes`` (as jax.vmap)."""
+
+    def expand(ax, sub):
+        if ax is not None and (isinstance(ax, bool) or ax != 0):
+            raise ValueError(f"{name}: expected 0 (batched), None (shared) or a pytree prefix of them, got {ax!r}")
+        return jax.tree.map(lambda leaf: ax if eqx.is_array(leaf) else None, sub)
+
+    try:
+        return jax.tree.map(expand, axes, tree, is_leaf=lambda x: x is None)
+    except (TypeError, ValueError) as err:
+        if str(err).startswith(name):
+            raise
+        raise ValueError(f"{name}: expected 0, None or a pytree prefix of the argument; {err}") from err
+
+
+def member_counts(name, tree, axes):
+    counts = []
+
+    def visit(ax, leaf):
+        if ax == 0:
+            if jnp.ndim(leaf) == 0:
+                raise ValueError(f"{name}: a batched leaf needs a leading member axis, got a scalar")
+            counts.append(jnp.shape(leaf)[0])
+
+    jax.tree.map(visit, axes, tree, is_leaf=lambda x: x is None)
+    return counts
+
+
+def take_member(tree, axes, index):
+    return jax.tree.map(lambda ax, x: x if ax is None else x[index], axes, tree, is_leaf=lambda x: x is None)

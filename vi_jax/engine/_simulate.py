@@ -192,7 +192,7 @@ def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, g
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
-scan_program, loop_program = _simulate_scan, _simulate_loop
+scan_program, loop_program, assemble = _simulate_scan, _simulate_loop, _assemble
 # Jitted under the same names (compile logs and tests/test_program_reuse.py name them).
 _simulate_scan = eqx.filter_jit(_simulate_scan)
 _simulate_loop = eqx.filter_jit(_simulate_loop)

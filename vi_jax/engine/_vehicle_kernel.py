@@ -8,9 +8,10 @@ the residual; only the step itself is written for the vehicle."""
 import jax
 import jax.numpy as jnp
 
-from ..solvers import MAX_ITERATIONS, NONFINITE, SINGULAR_DIFFERENCE_MAP, SUCCESS, CHORD_ITERATIONS
+from ..solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
 from ..lie import _series
-from .._saved_nodes import SAVE_BLOCK, rematerialised_steps, scan_saved_nodes
+from ._member_loops import loop_member_nodes, scan_member_nodes
+from ._member_newton import newton_members, vmax
 from ._solution import Solution
 
 
@@ -49,128 +50,6 @@ def _inv3(A):
     c = (_cross(A[1], A[2]), _cross(A[2], A[0]), _cross(A[0], A[1]))
     inv_det = 1 / _dot(A[0], c[0])
     return tuple(tuple(c[j][i] * inv_det for j in range(3)) for i in range(3))
-
-
-def _vmax(v):
-    out = v[0]
-    for x in v[1:]:
-        out = jnp.maximum(out, x)
-    return out
-
-
-def _lu(A):
-    """Unrolled LU factors of a small k×k matrix, without pivoting (as ``_solve.dense_solve``:
-    the Newton matrices are h-perturbations of a positive definite Hessian)."""
-    rows = [list(row) for row in A]
-    k = len(rows)
-    inv_diag, multipliers = [], []
-    for j in range(k):
-        inv_diag.append(1 / rows[j][j])
-        col = []
-        for i in range(j + 1, k):
-            f = rows[i][j] * inv_diag[j]
-            rows[i] = [rows[i][c] - f * rows[j][c] for c in range(k)]
-            col.append(f)
-        multipliers.append(col)
-    return rows, inv_diag, multipliers
-
-
-def _lu_solve(lu, b):
-    rows, inv_diag, multipliers = lu
-    k = len(b)
-    y = list(b)
-    for j in range(k):
-        for f, i in zip(multipliers[j], range(j + 1, k)):
-            y[i] = y[i] - f * y[j]
-    x = [None] * k
-    for i in reversed(range(k)):
-        acc = y[i]
-        for c in range(i + 1, k):
-            acc = acc - rows[i][c] * x[c]
-        x[i] = acc * inv_diag[i]
-    return tuple(x)
-
-
-def _columns(linear, like):
-    """Per-member Jacobian of a map with no coupling between members: column j is the map
-    applied to the tangent with component j = 1 for every member."""
-    k = len(like)
-    cols = [linear(tuple(jnp.ones_like(c) if i == j else jnp.zeros_like(c) for i, c in enumerate(like))) for j in range(k)]
-    return [[cols[j][i] for j in range(k)] for i in range(k)]
-
-
-def _where(mask, new, old):
-    return jax.tree.map(lambda a, b: jnp.where(mask, a, b), new, old)
-
-
-def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS):
-    """Solve ``fn(z) = 0`` for every member at once; ``z`` is a tuple of component arrays and
-    ``fn(z) -> (residual, scale)`` (same tuple structure; scale per member) must not couple
-    members. The iteration of ``vj.simulate``'s Newton (one Newton step, chord steps, a check,
-    masked fallback Newton steps while any member has not converged, a final correction).
-    Returns z and per-member (iterations, relative residual, result); implicit-function
-    gradients through ``jax.lax.custom_root``."""
-
-    def residual_only(z):
-        return fn(z)[0]
-
-    def norm(r):
-        return _vmax(tuple(jnp.abs(c) for c in r))
-
-    def not_converged(r, scale):
-        return norm(r) > rtol * scale
-
-    def finite(r):
-        out = jnp.isfinite(r[0])
-        for c in r[1:]:
-            out = out & jnp.isfinite(c)
-        return out
-
-    def value_and_lu(z):
-        r, scale = fn(z)
-        _, lin = jax.linearize(residual_only, z)
-        return r, scale, _lu(_columns(lin, z))
-
-    def solve(_, z):
-        r, scale, lu = value_and_lu(z)
-        n_chord = max(min(chord_iterations, max_iterations - 1), 0)
-        for _ in range(1 + n_chord):
-            z = _axpy(-1.0, _lu_solve(lu, r), z)
-            r, scale = fn(z)
-        i = jnp.full(jnp.shape(scale), 1 + n_chord, jnp.int32)
-
-        def active_of(i, r, scale):
-            return (i < max_iterations) & not_converged(r, scale) & finite(r)
-
-        def body(state):
-            i, z, r, scale, lu, active = state
-            z = _where(active, _axpy(-1.0, _lu_solve(lu, r), z), z)
-            new = value_and_lu(z)
-            r, scale, lu = _where(active, new, (r, scale, lu))
-            i = i + active
-            return i, z, r, scale, lu, active_of(i, r, scale)
-
-        state = (i, z, r, scale, lu, active_of(i, r, scale))
-        state = jax.lax.cond(
-            jnp.any(state[-1]),
-            lambda s: jax.lax.while_loop(lambda s: jnp.any(s[-1]), body, s),
-            lambda s: s,
-            state,
-        )
-        i, z, r, scale, lu, _ = state
-        z = _axpy(-1.0, _lu_solve(lu, r), z)
-        rel = norm(r) / jnp.where(scale > 0, scale, 1.0)
-        ok = finite(z) & finite(r)
-        result = jnp.where(~ok, NONFINITE, jnp.where(rel <= rtol, SUCCESS, MAX_ITERATIONS))
-        dtype = z[0].dtype  # custom_root's JVP rule mishandles integer auxiliary outputs
-        return z, (i.astype(dtype), rel, result.astype(dtype))
-
-    def tangent_solve(linear, y):
-        return _lu_solve(_lu(_columns(linear, y)), y)
-
-    z, (i, rel, result) = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
-    stats = (i.astype(jnp.int32), rel, result.astype(jnp.int8))
-    return z, jax.lax.stop_gradient(stats)
 
 
 # --- the underwater vehicle on component arrays -----------------------------------------
@@ -233,7 +112,7 @@ def _vehicle_step(p, tau, h, rtol, max_iterations, state):
 
     def residual(w):
         f = _dtau_dual(tau, h, w, _matvec(p["inertia"], w))
-        return tuple(a - b for a, b in zip(f, rhs)), _vmax(tuple(jnp.abs(c) + s for c, s in zip(f, size)))
+        return tuple(a - b for a, b in zip(f, rhs)), vmax(tuple(jnp.abs(c) + s for c, s in zip(f, size)))
 
     w, (iterations, rel, result) = newton_members(residual, w, rtol=rtol, max_iterations=max_iterations)
     if tau == "exp":
@@ -290,51 +169,22 @@ def _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members):
     return p, dtype, state0, worst_step
 
 
-def _no_stats(n_members, dtype):
-    return (jnp.zeros((n_members,), jnp.int32), jnp.zeros((n_members,), dtype), jnp.zeros((n_members,), jnp.int8))
-
-
-def _pack(state, stats, dtype):
-    """One packed row per node: a write per saved array costs more than the arithmetic."""
-    return jnp.stack(jax.tree.leaves(state[:4])), jnp.stack([x.astype(dtype) for x in stats])
+def _rows(state):
+    return jax.tree.leaves(state[:4])
 
 
 def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iterations, n_members, checkpoint):
-    """Solution of every member (leading axis = member) from the batch-minor kernel (static
-    step counts: what ``jit``, ``grad`` and ``vmap`` trace). ``checkpoint``: reverse mode
-    rematerialises as ``vj.simulate``'s (states stored at blocks of saved nodes, √save_every
-    blocks of steps between two nodes); the forward pass is unchanged."""
+    """Solution of every member (leading axis = member), static step counts."""
     p, dtype, state0, worst_step = _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members)
-
-    def worst_steps(carry, n):
-        return jax.lax.scan(worst_step, carry, None, length=n)[0]
-
-    def node(state, _):
-        carry = (state, _no_stats(n_members, dtype))
-        if not checkpoint or save_every <= SAVE_BLOCK:
-            carry = worst_steps(carry, save_every)
-        else:
-            carry = rematerialised_steps(worst_steps, carry, save_every)
-        return carry[0], _pack(*carry, dtype)
-
-    _, (saved, stats) = scan_saved_nodes(node, state0, n_saved, checkpoint)
+    saved, stats = scan_member_nodes(worst_step, state0, _rows, n_saved, save_every, checkpoint, n_members, dtype)
     return _vehicle_solution(p, state0, saved, stats, h * save_every, n_members, dtype)
 
 
 def _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau, rtol, max_iterations, n_members):
     """The same with traced step counts (``n_saved`` ≤ ``capacity`` nodes of ``save_every``
-    steps): one program for every run length. Rows past ``n_saved`` repeat the initial state."""
+    steps): one program for every run length."""
     p, dtype, state0, worst_step = _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members)
-    first, no_stats = _pack(state0, _no_stats(n_members, dtype), dtype)
-
-    def node(k, carry):
-        state, saved, stats = carry
-        carry = jax.lax.fori_loop(0, save_every, lambda _, c: worst_step(c, None)[0], (state, _no_stats(n_members, dtype)))
-        row, row_stats = _pack(*carry, dtype)
-        return carry[0], saved.at[k].set(row), stats.at[k].set(row_stats)
-
-    buffers = (jnp.broadcast_to(first, (capacity,) + first.shape), jnp.broadcast_to(no_stats, (capacity,) + no_stats.shape))
-    _, saved, stats = jax.lax.fori_loop(0, n_saved, node, (state0, *buffers))
+    saved, stats = loop_member_nodes(worst_step, state0, _rows, n_saved, save_every, capacity, n_members, dtype)
     return _vehicle_solution(p, state0, saved, stats, h * save_every, n_members, dtype)
 
 

@@ -1,0 +1,197 @@
+"""The batched DEP step of any scene, generated from its reduced Lagrangian: ``vj.ensemble``'s
+fast path (every group, τ = Cayley or exp, orders 1/2/4/6, with or without advected
+parameters and additional dynamics).
+
+The step is ``vj.simulate``'s (:func:`vi_jax.discrete.dep_step`, seed 000 eq. 42 with 43–44),
+cut into per-member pieces — the body configuration and advected parameter, the F⁻ residual
+and its forward-mode Jacobian, the F⁺ update — each run on component arrays
+(:func:`componentwise`): every array of a piece is a tuple of arrays over the members, so XLA
+fuses a whole Newton iteration into one loop over the members. Newton itself
+(:func:`newton_members`) runs on those tuples with the iteration of ``vj.simulate``: one
+Newton step, two chord steps, a check, masked fallback iterations while a member has not
+converged, a final correction, implicit-function gradients. A failed step turns the member's
+state to NaN, as ``vj.simulate`` does.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..discrete._dep import StepState, StepStats, _join, _split, discrete_momenta, legendre_initial_state
+from ..solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
+from ._simulate import assemble
+from ..lie._small import batched_products
+from ._components import componentwise, components, from_member_arrays, member_arrays
+from ._member_loops import loop_member_nodes, scan_member_nodes
+from ._member_newton import newton_members
+
+
+def _pieces(static, tau, rule):
+    """The per-member pieces of one step, each a function of the scene's array leaves first."""
+
+    def scene(params):
+        return eqx.combine(params, static)
+
+    def body(params, g, q):
+        system = scene(params)
+        return system.body_configuration(g, q), system.body_advected(g)
+
+    def residual(params, h, z, n, a, target):
+        (m, p), _, scale = discrete_momenta(scene(params), tau, rule, h, z, n, a)
+        return _join(m, p) - target, scale
+
+    def value_and_jacobian(params, h, z, n, a, target):
+        def with_aux(z):
+            r, scale = residual(params, h, z, n, a, target)
+            return r, (r, scale)
+
+        jac, (r, scale) = jax.jacfwd(with_aux, has_aux=True)(z)
+        return r, scale, jac
+
+    def update(params, h, z, g, q, n, a):
+        system = scene(params)
+        G = system.group
+        xi, nu = _split(system, z)
+        _, (m_next, p_next), _ = discrete_momenta(system, tau, rule, h, z, n, a)
+        q_next = None if q is None else q + h * system.configuration_action.act(g, nu)
+        return G.compose(g, tau.tau(G, h * xi)), q_next, m_next, p_next, tau.is_regular(G, h * xi)
+
+    return body, residual, value_and_jacobian, update
+
+
+FIELDS = ("g", "q", "M", "P", "z")
+
+
+class _Layout(eqx.Module):
+    """Shapes of the state's fields: carries are flat tuples of member arrays."""
+
+    shapes: tuple = eqx.field(static=True)
+
+    def flat(self, state, n_members, dtype):
+        return tuple(() if x is None else member_arrays(x, n_members, dtype) for x in state)
+
+    def unflat(self, carry):
+        return tuple(None if s is None else from_member_arrays(c, s) for c, s in zip(carry, self.shapes))
+
+
+def _nan_where(failed, carry):
+    return jax.tree.map(lambda x: jnp.where(failed, jnp.nan, x), carry)
+
+
+def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout):
+    """``step(carry, h) -> (carry, (iterations, residual, result))`` on flat member arrays."""
+    body, residual, value_and_jacobian, update = (componentwise(f, n_members) for f in _pieces(static, tau, rule))
+
+    def step(carry, h):
+        dtype = carry[2][0].dtype
+        g, q, M, P, z = layout.unflat(carry)
+        hc = components(h, False)
+        n, a = body(params, g, q)
+        target = M if P is None else np.concatenate([M, P])
+        shape = z.shape
+
+        def fn(zt):
+            r, scale = residual(params, hc, from_member_arrays(zt, shape), n, a, target)
+            return member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,))
+
+        def fn_jac(zt):
+            r, scale, jac = value_and_jacobian(params, hc, from_member_arrays(zt, shape), n, a, target)
+            rows = tuple(tuple(row) for row in jac)  # constants and shared entries kept: the LU folds them
+            return member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,)), rows
+
+        zt, (iterations, rel, result) = newton_members(
+            fn, carry[4], rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac
+        )
+        z = from_member_arrays(zt, shape)
+        g, q, M, P, regular = update(params, hc, z, g, q, n, a)
+        result = jnp.where(regular[()], result, jnp.int8(SINGULAR_DIFFERENCE_MAP))
+        new = layout.flat((g, q, M, P, z), n_members, dtype)
+        return _nan_where(result != SUCCESS, new), (iterations, rel, result)
+
+    return step
+
+
+def _start(system, x0, axes, dtype, n_members):
+    """Scene leaves as components, the initial state (members first) and the carry layout."""
+    sys_axes, state_axes = axes
+    state0 = jax.vmap(
+        lambda s, x: legendre_initial_state(s, x.g, x.xi, x.q, x.qdot), in_axes=(sys_axes, state_axes), axis_size=n_members
+    )(system, x0)
+    state0 = jax.tree.map(lambda x: jnp.asarray(x, dtype), state0)
+    params, static = eqx.partition(system, eqx.is_array)
+    params = jax.tree.map(lambda ax, x: None if x is None else components(x, ax == 0), sys_axes, params, is_leaf=lambda x: x is None)
+    fields = tuple(getattr(state0, f) for f in FIELDS)
+    layout = _Layout(tuple(None if x is None else x.shape[1:] for x in fields))
+    carry0 = layout.flat(tuple(None if x is None else components(x, True) for x in fields), n_members, dtype)
+    return params, static, state0, layout, carry0
+
+
+def _one_step(step, gammas, h):
+    """One (composed) step; its statistics are the worst over the sub-steps."""
+    if len(gammas) == 1:
+        return lambda carry: step(carry, gammas[0] * h)
+
+    def composed(carry):
+        carry, stats = jax.lax.scan(step, carry, jnp.asarray(gammas, h.dtype) * h)
+        return carry, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+
+    return composed
+
+
+def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members):
+    dtype = jnp.asarray(h).dtype
+    params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
+    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout)
+    one_step = _one_step(step, gammas, h)
+
+    def worst_step(carry, _):
+        carry, worst = carry
+        carry, stats = one_step(carry)
+        return (carry, jax.tree.map(jnp.maximum, worst, stats)), None
+
+    return dtype, state0, layout, carry0, worst_step
+
+
+def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n_members, checkpoint):
+    """(initial state, (saved states, statistics)) of every member, members first, with static
+    step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does."""
+    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members)
+    saved, stats = scan_member_nodes(worst_step, carry0, jax.tree.leaves, n_saved, save_every, checkpoint, n_members, dtype)
+    return state0, _unpack(layout, carry0, saved, stats)
+
+
+def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members):
+    """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
+    run length."""
+    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members)
+    saved, stats = loop_member_nodes(worst_step, carry0, jax.tree.leaves, n_saved, save_every, capacity, n_members, dtype)
+    return state0, _unpack(layout, carry0, saved, stats)
+
+
+def _unpack(layout, carry0, saved, stats):
+    """Packed rows (nodes, components, members) → the saved ``StepState`` and ``StepStats``
+    with members first."""
+    rows = list(jnp.transpose(saved, (1, 2, 0)))  # components × (members, nodes)
+    fields = []
+    for carry, shape in zip(carry0, layout.shapes):
+        if shape is None:
+            fields.append(None)
+            continue
+        size = int(np.prod(shape))
+        part, rows = rows[:size], rows[size:]
+        fields.append(jnp.stack(part, axis=-1).reshape(part[0].shape + shape))
+    iterations, rel, result = (x.T.astype(t) for x, t in zip(jnp.moveaxis(stats, 1, 0), (jnp.int32, saved.dtype, jnp.int8)))
+    return StepState(*fields), StepStats(iterations, rel, result)
+
+
+def generated_solution(system, system_axes, nodes, h, save_every, rtol, max_iterations, dots):
+    """The Solution of every member from the generated step's saved nodes (members first): the
+    node diagnostics of ``vj.simulate`` under ``vmap``."""
+    state0, (saved, stats) = nodes
+
+    def one(system, state0, saved, stats):
+        return assemble(system, state0, saved, stats, h, save_every, rtol, max_iterations)
+
+    with batched_products(dots):
+        return eqx.filter_vmap(one, in_axes=(system_axes, 0, 0, 0))(system, state0, saved, stats)
