@@ -200,6 +200,11 @@ def test_so3_closed_forms_match_generic_autodiff():
         close(getattr(lie.SO3(), name)(x), getattr(generic, name)(P @ x), 1e-13)
     close(lie.SO3().dcay_inv(x), P @ generic.dcay_inv(P @ x) @ P, 1e-13)
     close(lie.SO3().dexp_inv(x), P @ generic.dexp_inv(P @ x) @ P, 1e-12)
+    # the dual maps in vector form (eqs. 88, 97), against the generic transposed matrices
+    mu = jnp.array([0.3, 1.1, -0.5])
+    for scale in (1e-9, 1.0, 2.0):
+        close(lie.SO3().dcay_inv_dual(scale * x, mu), P @ generic.dcay_inv_dual(scale * P @ x, P @ mu), 1e-13)
+        close(lie.SO3().dexp_inv_dual(scale * x, mu), P @ generic.dexp_inv_dual(scale * P @ x, P @ mu), 1e-12)
 
 
 def test_se3_closed_forms_match_generic_autodiff():

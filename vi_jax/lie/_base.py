@@ -97,6 +97,14 @@ class AbstractMatrixGroup(eqx.Module):
         eye = jnp.eye(self.matrix_size, dtype=X.dtype)
         return jax.jacfwd(lambda eta: self.vee(matmul(matmul(eye - X / 2, self.hat(eta)), eye + X / 2)))(jnp.zeros_like(x))
 
+    def dcay_inv_dual(self, x, mu):
+        """(dcay⁻¹_x)* μ = (dcay⁻¹_x)ᵀ μ."""
+        return matvec(self.dcay_inv(x).T, mu)
+
+    def dexp_inv_dual(self, x, mu):
+        """(dexp⁻¹_x)* μ = (dexp⁻¹_x)ᵀ μ."""
+        return matvec(self.dexp_inv(x).T, mu)
+
     def exp(self, x):
         return jax.scipy.linalg.expm(self.hat(x))
 

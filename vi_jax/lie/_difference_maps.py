@@ -52,6 +52,9 @@ class Cayley(AbstractDifferenceMap):
     def dtau_inv(self, group, x):
         return group.dcay_inv(x)
 
+    def dtau_inv_dual(self, group, x, mu):
+        return group.dcay_inv_dual(x, mu)
+
 
 class Exp(AbstractDifferenceMap):
     """τ = exp. dexp⁻¹ has poles at rotation angles 2πk and log is not unique beyond π, so
@@ -67,6 +70,9 @@ class Exp(AbstractDifferenceMap):
 
     def dtau_inv(self, group, x):
         return group.dexp_inv(x)
+
+    def dtau_inv_dual(self, group, x, mu):
+        return group.dexp_inv_dual(x, mu)
 
     def is_regular(self, group, x):
         return group.rotation_angle_squared_bound(x) < jnp.pi**2

@@ -60,6 +60,16 @@ def so3_dcay_inv(x):
     return jnp.eye(3, dtype=x.dtype) - 0.5 * skew3(x) + 0.25 * jnp.outer(x, x)
 
 
+def so3_dcay_inv_dual(x, mu):
+    """(dcay⁻¹_x)ᵀμ = μ + x×μ/2 + (x·μ)x/4 (seed 000 eq. 88), without forming the matrix."""
+    return mu + 0.5 * jnp.cross(x, mu) + 0.25 * dot(x, mu) * x
+
+
+def so3_dexp_inv_dual(x, mu):
+    """(dexp⁻¹_x)ᵀμ = μ + x×μ/2 + α(θ) x×(x×μ) (seed 000 eq. 97), without forming the matrix."""
+    return mu + 0.5 * jnp.cross(x, mu) + _series.dexp_inv_alpha(dot(x, x)) * jnp.cross(x, jnp.cross(x, mu))
+
+
 def so3_cay_inv(R):
     """x = 2 vee(R − Rᵀ)/(1 + tr R) (rotation angle < π); ``unskew3`` already halves."""
     return 4 * unskew3(R) / (1 + jnp.trace(R))
@@ -125,6 +135,12 @@ class SO3(AbstractMatrixGroup):
 
     def dcay_inv(self, x):
         return so3_dcay_inv(x)
+
+    def dcay_inv_dual(self, x, mu):
+        return so3_dcay_inv_dual(x, mu)
+
+    def dexp_inv_dual(self, x, mu):
+        return so3_dexp_inv_dual(x, mu)
 
     def exp(self, x):
         return so3_exp(x)
