@@ -1,6 +1,8 @@
 """Members per chunk of the generated batched step on CPU: ``vj.ensemble`` (1024 members × 1000
 steps, final node saved, Cayley) with the chunk size forced to 64, 256 and 1024, compiled code
-only (median of 5). Decides ``vi_jax.engine._generated_step.generated_chunk``.
+only (median of 5). Decided ``CHUNK`` = 64 for the generated step too: 256 is up to 1.3× faster
+for some scenes and 2.8× slower for others (XLA:CPU splits larger loops over the cores), 1024
+is never faster than 64 by more than 2%.
 
     python benchmarks/ensemble_chunks.py [--members 1024] [--steps 1000] [--fast-loops]
 """
@@ -36,7 +38,7 @@ def main():
         x0 = model.initial_state()
         states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(n, 3)))
         for chunk in (64, 256, 1024):
-            _ensemble.generated_chunk = lambda system, x0, chunk=chunk: chunk
+            _ensemble.CHUNK = chunk
             run = eqx.filter_jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, steps, order=order, save_every=steps, method="batched", throw=False).g[:, -1])
             compile_s, t, _ = time_compiled(run, model, states, jnp.asarray(h), repeats=5)
             rows.append(dict(scene=name, order=order, chunk=chunk, members=n, steps=steps, seconds=t, rate=n * steps / t, compile_s=compile_s))

@@ -55,7 +55,7 @@ from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
-from ._generated_step import generated_chunk, generated_loop, generated_scan, generated_solution
+from ._generated_step import generated_loop, generated_scan, generated_solution
 from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
 
 METHODS = ("auto", "batched", "vmap")
@@ -184,7 +184,7 @@ def ensemble(
         rtol=_default_rtol(dtype) if rtol is None else float(rtol),
         max_iterations=val.check_int("max_newton_iterations", max_newton_iterations, 1),
         checkpoint=bool(checkpoint), batched=batched, scheme=scheme,
-        chunk=None if target_platform(mesh) != "cpu" else CHUNK if batched != "generated" else generated_chunk(system, x0),
+        chunk=CHUNK if target_platform(mesh) == "cpu" else None,
     )
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
