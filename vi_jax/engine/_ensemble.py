@@ -230,7 +230,7 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         rule, gammas = composition_coefficients(order)
 
         def kernel(system, x0, n):
-            return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint)
+            return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint, chunk is not None)
 
         nodes = in_chunks(dynamic, static, axes, n_members, chunk, kernel)
         return generated_solution(system, axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)
@@ -280,7 +280,7 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
     rule, gammas = composition_coefficients(order)
     if batched == "generated":
         def kernel(system, x0, n):
-            return generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n)
+            return generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n, chunk is not None)
 
         nodes = in_chunks(dynamic, static, axes, n_members, chunk, kernel)
         return generated_solution(eqx.combine(dynamic, static)[0], axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)

@@ -94,8 +94,10 @@ def _boundary(tree, always):
     return jax.tree.unflatten(treedef, leaves)
 
 
-def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout):
-    """``step(carry, h) -> (carry, (iterations, residual, result))`` on flat member arrays."""
+def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True):
+    """``step(carry, h) -> (carry, (iterations, residual, result))`` on flat member arrays;
+    ``boundaries``: the fusion boundaries of :func:`_boundary` (the CPU plan; a GPU fuses
+    without them and would pay a conditional per boundary)."""
     body, residual, value_and_jacobian, update = (componentwise(f, n_members) for f in _pieces(static, tau, rule))
 
     def step(carry, h):
@@ -107,15 +109,16 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
         shape = z.shape
 
         always = h == h  # True unless h is NaN (and then every value is)
+        boundary = (lambda tree: _boundary(tree, always)) if boundaries else (lambda tree: tree)
 
         def fn(zt):
-            r, scale = residual(params, hc, from_member_arrays(_boundary(zt, always), shape), n, a, target)
-            return _boundary((member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,))), always)
+            r, scale = residual(params, hc, from_member_arrays(boundary(zt), shape), n, a, target)
+            return boundary((member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,))))
 
         def fn_jac(zt):
             r, scale, jac = value_and_jacobian(params, hc, from_member_arrays(zt, shape), n, a, target)
             rows = tuple(tuple(row) for row in jac)  # constants and shared entries kept: the LU folds them
-            return _boundary((member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,)), rows), always)
+            return boundary((member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,)), rows))
 
         zt, (iterations, rel, result) = newton_members(
             fn, carry[4], rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac
@@ -156,10 +159,10 @@ def _one_step(step, gammas, h):
     return composed
 
 
-def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members):
+def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries):
     dtype = jnp.asarray(h).dtype
     params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
-    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout)
+    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries)
     one_step = _one_step(step, gammas, h)
 
     def worst_step(carry, _):
@@ -170,18 +173,18 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     return dtype, state0, layout, carry0, worst_step
 
 
-def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n_members, checkpoint):
+def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n_members, checkpoint, boundaries=True):
     """(initial state, (saved states, statistics)) of every member, members first, with static
     step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does."""
-    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members)
+    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
     saved, stats = scan_member_nodes(worst_step, carry0, jax.tree.leaves, n_saved, save_every, checkpoint, n_members, dtype)
     return state0, _unpack(layout, carry0, saved, stats)
 
 
-def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members):
+def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
     run length."""
-    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members)
+    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
     saved, stats = loop_member_nodes(worst_step, carry0, jax.tree.leaves, n_saved, save_every, capacity, n_members, dtype)
     return state0, _unpack(layout, carry0, saved, stats)
 
