@@ -181,3 +181,23 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
     for a, b in zip(jax.tree.leaves(plans["gpu"]), jax.tree.leaves(plans["cpu"])):
         a, b = np.asarray(a), np.asarray(b)
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
+
+
+@pytest.mark.parametrize("name", ["user System, order 4", "heavy top on SO(4), order 1"])
+def test_node_velocities_equal_the_per_node_inverse_legendre_map(name):
+    """``vj.simulate``'s node velocities, solved for all nodes at once on component arrays, equal
+    the per-node Newton of ``inverse_legendre`` (the same iteration: to Newton's tolerance)."""
+    from vi_jax.discrete import inverse_legendre
+    from vi_jax.engine._node_velocities import node_velocities
+
+    system, x0, tau, order, h = _scene(name)
+    sol = vj.simulate(system, x0, h, 40, tau=tau, order=order)
+    states = vj.discrete.StepState(sol.g, sol.q, sol.M, sol.P, sol.xi if sol.nu is None else jnp.concatenate([sol.xi, sol.nu], -1))
+    states = jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), states)  # a guess off the root
+    ours = node_velocities(system, states, 64 * EPS, 20)
+    theirs = jax.vmap(lambda g, q, M, P, z: inverse_legendre(system, g, q, M, P, z, rtol=64 * EPS, max_iterations=20))(
+        states.g, states.q, states.M, states.P, states.z
+    )
+    for a, b in zip(ours, theirs):
+        if b is not None:
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=64 * EPS * float(np.max(np.abs(b))))

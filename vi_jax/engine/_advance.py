@@ -94,18 +94,19 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
 
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
 
-    def steps(state, n):
-        state, stats = jax.lax.scan(one_step, state, None, length=n)
-        return state, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+    def worst_step(carry, _):
+        state, stats = one_step(carry[0])
+        return (state, jax.tree.map(jnp.maximum, carry[1], stats)), None
 
-    def worst_steps(carry, n):  # the worst statistics so far, carried
-        state, more = steps(carry[0], n)
-        return state, jax.tree.map(jnp.maximum, carry[1], more)
+    def worst_steps(carry, n):  # the worst statistics so far, carried (stacking every step's
+        # statistics costs XLA:CPU three writes per step: 0.52 → 0.14 s for 50,000 steps)
+        return jax.lax.scan(worst_step, carry, None, length=n)[0]
 
     def node_steps(state):
+        carry = (state, StepStats.zeros(state.z.dtype))
         if not checkpoint or save_every <= SAVE_BLOCK:
-            return steps(state, save_every)
-        return rematerialised_steps(worst_steps, (state, StepStats.zeros(state.z.dtype)), save_every)
+            return worst_steps(carry, save_every)
+        return rematerialised_steps(worst_steps, carry, save_every)
 
     def node(state, _):
         state, stats = one_step(state, None) if save_every == 1 else node_steps(state)

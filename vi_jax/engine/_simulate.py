@@ -9,7 +9,7 @@ import numpy as np
 from .. import _validation as val
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
-from ..discrete import composition_coefficients, inverse_legendre, legendre_initial_state
+from ..discrete import composition_coefficients, legendre_initial_state
 from ..discrete._composition import ORDERS
 from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
 from ..lie import difference_map
@@ -18,6 +18,7 @@ from ._advance import advance_loop, advance_scan, traced_composition
 from ._placement import placement
 from .._precision import full_precision
 from .._saved_nodes import first_rows, saved_capacity
+from ._node_velocities import node_velocities
 from ._simulate_splitting import simulate_splitting
 from ._solution import Solution, node_invariants, validate_inputs
 
@@ -37,10 +38,7 @@ def _validate(system, x0, h, n_steps, tau, order, save_every):
 
 
 def _node_diagnostics(system, states, rtol, max_iter):
-    inv = jax.vmap(
-        lambda g, q, M, P, z: inverse_legendre(system, g, q, M, P, z, rtol=rtol, max_iterations=max_iter)
-    )
-    xi, nu = inv(states.g, states.q, states.M, states.P, states.z)
+    xi, nu = node_velocities(system, states, rtol, max_iter)
     return (xi, nu) + node_invariants(system, states.g, states.q, states.M, states.P, xi, nu)
 
 
