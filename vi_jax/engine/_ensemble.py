@@ -21,7 +21,7 @@ tests/test_generated_step.py):
 
 Speeds: ``python benchmarks/ensemble_vs_vmap.py [--fast-loops]``.
 
-Newton in both paths follows ``vj.simulate`` (one Newton step, two chord steps, a check, a final
+Newton in every path follows ``vj.simulate`` (one Newton step, two chord steps, a check, a final
 correction): the fallback iterations run only while some member has not converged, and only
 the unconverged members are updated, so per-member results do not depend on the other members
 (nor on how the ensemble is sharded). Per-member convergence is in ``Solution.newton_iterations``,
@@ -128,7 +128,7 @@ def ensemble(
     order 1 its hand-written kernel), "vmap" (``jax.vmap`` of the DEP program) or "auto"
     (batched). ``mesh``: a ``jax.sharding.Mesh``; members
     are split over all its devices (padded to a multiple of their number). The other keywords
-    are ``vj.simulate``'s (``checkpoint=True`` by default, on both paths: reverse mode
+    are ``vj.simulate``'s (``checkpoint=True`` by default, on every path: reverse mode
     rematerialises, memory grows with saved nodes, not steps; ``scheme="splitting"``:
     ``jax.vmap`` of the explicit splitting);
     ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. On concrete
