@@ -12,7 +12,7 @@ rearrangements of the object arrays, and products with the constant zeros and on
 mode bases and structure matrices are folded away at trace time.
 
 Primitives without a componentwise rule run as they are under ``jax.vmap`` on the stacked
-components (correct, slower); tests/test_components.py checks the rules against the plain
+components (correct, slower); tests/test_generated_step.py checks the rules against the plain
 evaluation.
 """
 
@@ -56,30 +56,37 @@ def _bind(prim, params, values):
     return prim.bind(*values, **params)
 
 
-def _simplified(name, values, dtype):
-    """A trivial result of ``name`` on one constant operand (x·0, x·1, x+0, …), or None."""
-    if name in ("mul", "add", "add_any", "sub", "div") and len(values) == 2:
-        a, b = values
-        if name == "mul":
-            for c, other in ((a, b), (b, a)):
-                if _is_const(c) and c == 0:
-                    return _const(0, dtype)
-                if _is_const(c) and c == 1:
-                    return other
-        elif name in ("add", "add_any"):
-            if _is_const(a) and a == 0:
-                return b
-            if _is_const(b) and b == 0:
-                return a
-        elif name == "sub":
-            if _is_const(b) and b == 0:
-                return a
-            if _is_const(a) and a == 0:
-                return -b
-        elif _is_const(a) and a == 0:
-            return _const(0, dtype)
-        elif _is_const(b) and b == 1:
+def _trivial(name, a, b):
+    """The result of the binary ``name`` when a constant operand makes it trivial (x·0, x·1,
+    x+0, x−0, 0−x, 0/x, x/1), else None."""
+    if name == "mul":
+        for c, other in ((a, b), (b, a)):
+            if _is_const(c) and c == 0:
+                return c
+            if _is_const(c) and c == 1:
+                return other
+    elif name in ("add", "add_any"):
+        if _is_const(a) and a == 0:
+            return b
+        if _is_const(b) and b == 0:
             return a
+    elif name == "sub":
+        if _is_const(b) and b == 0:
+            return a
+        if _is_const(a) and a == 0 and not _is_const(b):
+            return -b
+    elif name == "div":
+        if _is_const(a) and a == 0:
+            return a
+        if _is_const(b) and b == 1:
+            return a
+    return None
+
+
+def _simplified(name, values):
+    """A trivial result of ``name`` on one constant operand, or None."""
+    if len(values) == 2:
+        return _trivial(name, *values)
     if name == "select_n" and _is_const(values[0]):
         return values[1 + int(values[0])]
     return None
@@ -87,7 +94,6 @@ def _simplified(name, values, dtype):
 
 def _elementwise(eqn, operands):
     prim, params = eqn.primitive, eqn.params
-    dtype = eqn.outvars[0].aval.dtype
     operands = np.broadcast_arrays(*operands)
     out = np.empty(operands[0].shape, object)
     for idx in np.ndindex(out.shape):
@@ -95,37 +101,27 @@ def _elementwise(eqn, operands):
         if all(_is_const(v) for v in values):
             out[idx] = _fold(prim, params, values)
             continue
-        simple = _simplified(prim.name, values, dtype)
+        simple = _simplified(prim.name, values)
         out[idx] = simple if simple is not None else _bind(prim, params, values)
     return out
 
 
 def fold_add(a, b):
     """a + b, folding a constant zero."""
-    if _is_const(a) and a == 0:
-        return b
-    if _is_const(b) and b == 0:
-        return a
-    return a + b
+    out = _trivial("add", a, b)
+    return a + b if out is None else out
 
 
 def fold_sub(a, b):
     """a − b, folding a constant zero."""
-    if _is_const(b) and b == 0:
-        return a
-    if _is_const(a) and a == 0 and not _is_const(b):
-        return -b
-    return a - b
+    out = _trivial("sub", a, b)
+    return a - b if out is None else out
 
 
 def fold_mul(a, b):
     """a·b, folding constant zeros and ones."""
-    for c, other in ((a, b), (b, a)):
-        if _is_const(c) and c == 0:
-            return c
-        if _is_const(c) and c == 1:
-            return other
-    return a * b
+    out = _trivial("mul", a, b)
+    return a * b if out is None else out
 
 
 def _sum(values, dtype):
@@ -182,10 +178,6 @@ def _combine_with(name):
 
 def _broadcast_in_dim(eqn, x):
     shape, dims = eqn.params["shape"], eqn.params["broadcast_dimensions"]
-    expanded = np.empty([1] * len(shape), object) if x.ndim == 0 else None
-    if expanded is not None:
-        expanded[(0,) * len(shape)] = x[()]
-        return np.broadcast_to(expanded, shape)
     target = [1] * len(shape)
     for i, d in enumerate(dims):
         target[d] = x.shape[i]
@@ -258,19 +250,12 @@ def _constants(values):
 # --- the interpreter -------------------------------------------------------------------------
 
 
-def _stacked(x, n_members):
-    """Object array → array of shape (members,) + shape (the fallback's input)."""
+def stacked(x, n_members):
+    """Components → an array of shape (members,) + shape (also the fallback's input)."""
     flat = [jnp.broadcast_to(jnp.asarray(v), (n_members,)) for v in x.reshape(-1)]
     if not flat:
         return jnp.zeros((n_members,) + x.shape)
     return jnp.stack(flat, axis=-1).reshape((n_members,) + x.shape)
-
-
-def _unstacked(x):
-    out = np.empty(x.shape[1:], object)
-    for idx in np.ndindex(out.shape):
-        out[idx] = x[(slice(None),) + idx]
-    return out
 
 
 def _fallback(eqn, ins, n_members):
@@ -280,8 +265,8 @@ def _fallback(eqn, ins, n_members):
         out = eqn.primitive.bind(*args, **eqn.params)
         return out if eqn.primitive.multiple_results else [out]
 
-    outs = jax.vmap(one)(*(_stacked(x, n_members) for x in ins))
-    return [_unstacked(o) for o in outs]
+    outs = jax.vmap(one)(*(stacked(x, n_members) for x in ins))
+    return [components(o, True) for o in outs]
 
 
 def _live(jaxpr):
@@ -372,8 +357,3 @@ def from_member_arrays(flat, shape):
     for idx, v in zip(np.ndindex(shape), flat):
         out[idx] = v
     return out
-
-
-def stacked(x, n_members):
-    """Components → an array of shape (members,) + shape."""
-    return _stacked(x, n_members)

@@ -5,8 +5,8 @@ parameters and additional dynamics).
 The step is ``vj.simulate``'s (:func:`vi_jax.discrete.dep_step`, seed 000 eq. 42 with 43–44),
 cut into per-member pieces — the body configuration and advected parameter, the F⁻ residual
 and its forward-mode Jacobian, the F⁺ update — each run on component arrays
-(:func:`componentwise`): every array of a piece is a tuple of arrays over the members, so XLA
-fuses a whole Newton iteration into one loop over the members. Newton itself
+(:func:`componentwise`): every array of a piece is held as its components, arrays over the
+members, so XLA fuses a whole Newton iteration into one loop over the members. Newton itself
 (:func:`newton_members`) runs on those tuples with the iteration of ``vj.simulate``: one
 Newton step, two chord steps, a check, masked fallback iterations while a member has not
 converged, a final correction, implicit-function gradients. A failed step turns the member's
@@ -24,7 +24,7 @@ from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
 from ._member_loops import loop_member_nodes, scan_member_nodes
-from ._member_newton import newton_members
+from ._member_newton import newton_members, on_member_tuples, value_and_jacobian_of
 
 
 def _pieces(static, tau, rule):
@@ -41,14 +41,6 @@ def _pieces(static, tau, rule):
         (m, p), _, scale = discrete_momenta(scene(params), tau, rule, h, z, n, a)
         return _join(m, p) - target, scale
 
-    def value_and_jacobian(params, h, z, n, a, target):
-        def with_aux(z):
-            r, scale = residual(params, h, z, n, a, target)
-            return r, (r, scale)
-
-        jac, (r, scale) = jax.jacfwd(with_aux, has_aux=True)(z)
-        return r, scale, jac
-
     def update(params, h, z, g, q, n, a):
         system = scene(params)
         G = system.group
@@ -57,7 +49,7 @@ def _pieces(static, tau, rule):
         q_next = None if q is None else q + h * system.configuration_action.act(g, nu)
         return G.compose(g, tau.tau(G, h * xi)), q_next, m_next, p_next, tau.is_regular(G, h * xi)
 
-    return body, residual, value_and_jacobian, update
+    return body, residual, value_and_jacobian_of(residual, 2), update
 
 
 FIELDS = ("g", "q", "M", "P", "z")
@@ -111,15 +103,10 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
         always = h == h  # True unless h is NaN (and then every value is)
         boundary = (lambda tree: _boundary(tree, always)) if boundaries else (lambda tree: tree)
 
-        def fn(zt):
-            r, scale = residual(params, hc, from_member_arrays(boundary(zt), shape), n, a, target)
-            return boundary((member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,))))
-
-        def fn_jac(zt):
-            r, scale, jac = value_and_jacobian(params, hc, from_member_arrays(zt, shape), n, a, target)
-            rows = tuple(tuple(row) for row in jac)  # constants and shared entries kept: the LU folds them
-            return boundary((member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,)), rows))
-
+        fn, fn_jac = on_member_tuples(
+            lambda z: residual(params, hc, z, n, a, target), lambda z: value_and_jacobian(params, hc, z, n, a, target),
+            shape, n_members, dtype, boundary,
+        )
         zt, (iterations, rel, result) = newton_members(
             fn, carry[4], rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac
         )

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from ..solvers import CHORD_ITERATIONS, MAX_ITERATIONS, NONFINITE, SUCCESS
-from ._components import fold_mul, fold_sub
+from ._components import fold_mul, fold_sub, from_member_arrays, member_arrays
 
 
 def vmax(v):
@@ -63,6 +63,39 @@ def columns(linear, like):
     k = len(like)
     cols = [linear(tuple(jnp.ones_like(c) if i == j else jnp.zeros_like(c) for i, c in enumerate(like))) for j in range(k)]
     return [[cols[j][i] for j in range(k)] for i in range(k)]
+
+
+def value_and_jacobian_of(residual, argnum):
+    """``residual(*args) -> (r, scale)`` ↦ ``(*args) -> (r, scale, ∂r/∂args[argnum])``, the
+    Jacobian by forward mode (a per-member function, to run on components)."""
+
+    def value_and_jacobian(*args):
+        def with_aux(z):
+            r, scale = residual(*args[:argnum], z, *args[argnum + 1 :])
+            return r, (r, scale)
+
+        jac, (r, scale) = jax.jacfwd(with_aux, has_aux=True)(args[argnum])
+        return r, scale, jac
+
+    return value_and_jacobian
+
+
+def on_member_tuples(residual, value_and_jacobian, shape, n_members, dtype, boundary=lambda tree: tree):
+    """:func:`newton_members`'s ``fn`` and ``value_and_jacobian`` from functions of the unknowns
+    as components (an object array of ``shape``). Jacobian entries that are constants or shared
+    by all members stay so: the LU folds them. ``boundary`` marks the iterates and residuals."""
+
+    def values(r, scale):
+        return member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,))
+
+    def fn(zt):
+        return boundary(values(*residual(from_member_arrays(boundary(zt), shape))))
+
+    def fn_jac(zt):
+        r, scale, jac = value_and_jacobian(from_member_arrays(zt, shape))
+        return boundary(values(r, scale) + (tuple(tuple(row) for row in jac),))
+
+    return fn, fn_jac
 
 
 def _where(mask, new, old):

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..discrete._dep import _join, _split
 from ._components import componentwise, components, from_member_arrays, member_arrays, stacked
-from ._member_newton import newton_members
+from ._member_newton import newton_members, on_member_tuples, value_and_jacobian_of
 
 
 def node_velocities(system, states, rtol, max_iter):
@@ -37,29 +37,16 @@ def node_velocities(system, states, rtol, max_iter):
         value = _join(*s.momenta(xi, n, nu, a))
         return value - target, jnp.max(jnp.abs(target)) + jnp.max(jnp.abs(value))
 
-    def value_and_jacobian(p, z, n, a, target):
-        def with_aux(z):
-            r, scale = residual(p, z, n, a, target)
-            return r, (r, scale)
-
-        jac, (r, scale) = jax.jacfwd(with_aux, has_aux=True)(z)
-        return r, scale, jac
-
-    body_c, residual_c, jacobian_c = (componentwise(f, n_nodes) for f in (body, residual, value_and_jacobian))
+    body_c, residual_c, jacobian_c = (componentwise(f, n_nodes) for f in (body, residual, value_and_jacobian_of(residual, 1)))
     params = jax.tree.map(lambda x: components(x, False), params)
     per_node = lambda x: None if x is None else components(x, True)  # noqa: E731
     n, a = body_c(params, per_node(states.g), per_node(states.q))
     target = per_node(states.M) if states.P is None else np.concatenate([per_node(states.M), per_node(states.P)])
     shape = states.z.shape[1:]
 
-    def fn(zt):
-        r, scale = residual_c(params, from_member_arrays(zt, shape), n, a, target)
-        return member_arrays(r, n_nodes, dtype), jnp.broadcast_to(scale[()], (n_nodes,))
-
-    def fn_jac(zt):
-        r, scale, jac = jacobian_c(params, from_member_arrays(zt, shape), n, a, target)
-        return member_arrays(r, n_nodes, dtype), jnp.broadcast_to(scale[()], (n_nodes,)), tuple(tuple(row) for row in jac)
-
+    fn, fn_jac = on_member_tuples(
+        lambda z: residual_c(params, z, n, a, target), lambda z: jacobian_c(params, z, n, a, target), shape, n_nodes, dtype
+    )
     z0 = member_arrays(per_node(states.z), n_nodes, dtype)
     z, _ = newton_members(fn, z0, rtol=rtol, max_iterations=max_iter, value_and_jacobian=fn_jac)
     z = stacked(from_member_arrays(z, shape), n_nodes)
