@@ -2,18 +2,21 @@
 should run. Meant for a GPU machine; runs anywhere (small sizes on a CPU as a smoke test).
 
     python benchmarks/ensemble_gpu.py [--members 1024 32768 1048576] [--dtypes float64 float32]
-        [--cases vehicle1 heavy_top2 heavy_top1 vehicle2] [--budget-s 520] [--out FILE]
+        [--cases vehicle1 vehicle1_generated heavy_top2 heavy_top1 vehicle2] [--budget-s 520] [--out FILE]
 
 Rows, written to ``--out`` after every measurement (so a run cut short keeps what it measured):
 
-- ``ensemble``: ``jax.jit`` of ``vj.ensemble`` (``method="auto"``: the vehicle at order 1 takes the batched
-  kernel, every other case ``jax.vmap`` of ``vj.simulate``), member-steps per second, the final
+- ``ensemble``: ``jax.jit`` of ``vj.ensemble`` (``method="auto"``: the vehicle at order 1 takes the
+  hand-written batched kernel, every other case the step generated from the scene;
+  ``vehicle1_generated`` is the vehicle at order 1 through the generated step), member-steps per second, the final
   node only saved and only small outputs returned (final ξ, converged fraction), h = 0.01 (vehicle) / 0.005 (heavy top), Cayley, members with perturbed
   initial velocities. Each size runs ``min(1000, 2.5e8 / members)`` steps (the rate is per
   member-step), compiled code only, median of 5.
 - ``peers`` (vehicle order 1, float64, ``--peer-members``): a plain ``jax.vmap`` of the hand-written
   step (tests/hand_vehicle.py), and the batched kernel with the CPU plan (chunks of 64 members
   one after another, what every backend ran before).
+- ``peers`` (every generated case, float64, ``--peer-members``): ``method="vmap"``, a plain
+  ``jax.vmap`` of ``vj.simulate``'s program.
 - ``agreement``: per case and dtype, the first 4 members' final states against ``vj.simulate``
   on the host CPU in float64 (max abs difference of R and ξ).
 - ``single``: one trajectory, ``vj.simulate`` of the vehicle at order 1, µs per step on the
@@ -22,6 +25,7 @@ Rows, written to ``--out`` after every measurement (so a run cut short keeps wha
 """
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -32,7 +36,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from _timing import time_compiled  # noqa: E402
-CASES = {"vehicle1": ("vehicle", 1), "vehicle2": ("vehicle", 2), "heavy_top1": ("heavy_top", 1), "heavy_top2": ("heavy_top", 2)}
+CASES = {"vehicle1": ("vehicle", 1), "vehicle1_generated": ("vehicle", 1), "vehicle2": ("vehicle", 2),
+         "heavy_top1": ("heavy_top", 1), "heavy_top2": ("heavy_top", 2)}
 STEP = {"vehicle": 0.01, "heavy_top": 0.005}
 
 
@@ -49,6 +54,20 @@ def _scene(name, dtype):
 
     model = vj.models.UnderwaterVehicle() if name == "vehicle" else vj.models.HeavyTop()
     return _cast(model, dtype), _cast(model.initial_state(), dtype)
+
+
+@contextlib.contextmanager
+def _generated_for(case):
+    """The vehicle at order 1 through the generated step when ``case`` says so."""
+    from vi_jax.engine import _ensemble
+
+    real = _ensemble._vehicle_kernel_applies
+    if case.endswith("_generated"):
+        _ensemble._vehicle_kernel_applies = lambda *args: False
+    try:
+        yield
+    finally:
+        _ensemble._vehicle_kernel_applies = real
 
 
 def _summary(sol):
@@ -120,8 +139,9 @@ def measure(args):
                 n_steps = args.steps or int(min(1000, max(50, 2.5e8 // members)))
                 states = _states(x0, members, dtype)
                 fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
-                first, median, _ = time_compiled(fn, states, repeats=5)
-                last_xi, converged, g4, xi4 = fn(states)
+                with _generated_for(case):
+                    first, median, _ = time_compiled(fn, states, repeats=5)
+                    last_xi, converged, g4, xi4 = fn(states)
                 converged = float(converged)
                 row = dict(kind="ensemble", case=case, dtype=dtype_name, members=members, steps=n_steps,
                            compile_and_first_s=first, median_s=median, rate=members * n_steps / median, converged_fraction=converged)
@@ -139,6 +159,22 @@ def measure(args):
                 print(f"{case:10s} {dtype_name:8s} {members:8d} members x {n_steps:5d} steps: {row['rate'] / 1e9:7.3f} G member-steps/s "
                       f"(compile+first {first:6.1f} s, converged {converged:.3f})", flush=True)
                 save()
+
+    # plain vmap of vj.simulate for every generated case, float64
+    for case in args.cases:
+        if case == "vehicle1" or not args.peer_members or over_budget():
+            continue
+        name, order = CASES[case]
+        members = args.peer_members
+        n_steps = args.steps or int(min(1000, max(50, 2.5e8 // members)))
+        model, x0 = _scene(name, jnp.float64)
+        states = _states(x0, members, jnp.float64)
+        fn = jax.jit(lambda x: _summary(_ensemble.ensemble(model, x, STEP[name], n_steps, order=order, save_every=n_steps, method="vmap", throw=False)))
+        first, median, _ = time_compiled(fn, states, repeats=5)
+        out["rows"].append(dict(kind="peer", case=case, implementation='method="vmap"', dtype="float64",
+                                members=members, steps=n_steps, compile_and_first_s=first, median_s=median, rate=members * n_steps / median))
+        print(f"peer method=vmap {case} {members} members: {members * n_steps / median / 1e9:.3f} G/s", flush=True)
+        save()
 
     # peers for the vehicle at order 1, float64
     if "vehicle1" in args.cases and args.peer_members and not over_budget():
