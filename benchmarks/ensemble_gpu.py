@@ -57,6 +57,21 @@ def _scene(name, dtype):
 
 
 @contextlib.contextmanager
+def _fusion_boundaries(on):
+    """With ``on``, the generated step keeps its fusion boundaries on every backend (the CPU
+    plan's; by default a GPU plan runs without them)."""
+    from vi_jax.engine import _generated_step
+
+    real = _generated_step.make_step
+    if on:
+        _generated_step.make_step = lambda *args: real(*args[:-1], True)
+    try:
+        yield
+    finally:
+        _generated_step.make_step = real
+
+
+@contextlib.contextmanager
 def _generated_for(case):
     """The vehicle at order 1 through the generated step when ``case`` says so."""
     from vi_jax.engine import _ensemble
@@ -139,11 +154,11 @@ def measure(args):
                 n_steps = args.steps or int(min(1000, max(50, 2.5e8 // members)))
                 states = _states(x0, members, dtype)
                 fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
-                with _generated_for(case):
+                with _generated_for(case), _fusion_boundaries(args.boundaries):
                     first, median, _ = time_compiled(fn, states, repeats=5)
                     last_xi, converged, g4, xi4 = fn(states)
                 converged = float(converged)
-                row = dict(kind="ensemble", case=case, dtype=dtype_name, members=members, steps=n_steps,
+                row = dict(kind="ensemble", case=case, fusion_boundaries=args.boundaries, dtype=dtype_name, members=members, steps=n_steps,
                            compile_and_first_s=first, median_s=median, rate=members * n_steps / median, converged_fraction=converged)
                 if members == args.members[0]:
                     ref = []
@@ -260,6 +275,7 @@ def main():
     parser.add_argument("--steps", type=int, default=None, help="steps per run (default: min(1000, 2.5e8 / members))")
     parser.add_argument("--peer-members", type=int, default=32768, help="members for the peer rows (0: none)")
     parser.add_argument("--budget-s", type=float, default=520.0, help="start no new measurement after this")
+    parser.add_argument("--boundaries", action="store_true", help="keep the generated step's fusion boundaries on a GPU too")
     parser.add_argument("--no-single", dest="single", action="store_false")
     parser.add_argument("--single-steps", type=int, default=5000)
     parser.add_argument("--single-child", type=int, default=None, help=argparse.SUPPRESS)
