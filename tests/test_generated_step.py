@@ -74,8 +74,8 @@ SCENES = {
 }
 
 
-def _scene(name):
-    entry = SCENES[name]
+def _scene(name, scenes=SCENES):
+    entry = scenes[name]
     if len(entry) == 5:
         system, x0, tau, order, h = entry
     else:
@@ -183,17 +183,34 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
 
 
-@pytest.mark.parametrize("name", ["user System, order 4", "heavy top on SO(4), order 1"])
+def _quartic_top():
+    """A free top whose kinetic energy is not quadratic (ℓ = ½ξᵀJξ + ¼κ|ξ|⁴): its inverse
+    Legendre map is nonlinear, so Newton iterates."""
+    J = jnp.asarray([2.0, 3.0, 4.0])
+    system = vj.System(SO3(), lambda xi, n, nu, a, kappa: 0.5 * xi @ (J * xi) + 0.25 * kappa * (xi @ xi) ** 2, jnp.asarray(0.5))
+    return system, vj.State(jnp.eye(3), jnp.array([0.9, -0.6, 1.2]), None, None), "cayley", 1, 0.01
+
+
+NODE_SCENES = {**SCENES, "quartic kinetic energy": _quartic_top()}
+
+
+def _node_problem(name):
+    """A scene's saved nodes after 40 steps, moved off their velocities' root (a Newton guess)."""
+    system, x0, tau, order, h = _scene(name, NODE_SCENES)
+    sol = vj.simulate(system, x0, h, 40, tau=tau, order=order)
+    states = vj.discrete.StepState(sol.g, sol.q, sol.M, sol.P, sol.xi if sol.nu is None else jnp.concatenate([sol.xi, sol.nu], -1))
+    return system, jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), states)
+
+
+@pytest.mark.parametrize("name", ["user System, order 4", "heavy top on SO(4), order 1", "quartic kinetic energy"])
 def test_node_velocities_equal_the_per_node_inverse_legendre_map(name):
     """``vj.simulate``'s node velocities, solved for all nodes at once on component arrays, equal
-    the per-node Newton of ``inverse_legendre`` (the same iteration: to Newton's tolerance)."""
+    the per-node Newton of ``inverse_legendre`` (to Newton's tolerance), for kinetic energies
+    quadratic in the velocities (one Newton step, refined) and not (Newton iterates)."""
     from vi_jax.discrete import inverse_legendre
     from vi_jax.engine._node_velocities import node_velocities
 
-    system, x0, tau, order, h = _scene(name)
-    sol = vj.simulate(system, x0, h, 40, tau=tau, order=order)
-    states = vj.discrete.StepState(sol.g, sol.q, sol.M, sol.P, sol.xi if sol.nu is None else jnp.concatenate([sol.xi, sol.nu], -1))
-    states = jax.tree.map(lambda x: x + 0.01 * jnp.sin(jnp.arange(x.size, dtype=x.dtype).reshape(x.shape)), states)  # a guess off the root
+    system, states = _node_problem(name)
     ours = node_velocities(system, states, 64 * EPS, 20)
     theirs = jax.vmap(lambda g, q, M, P, z: inverse_legendre(system, g, q, M, P, z, rtol=64 * EPS, max_iterations=20))(
         states.g, states.q, states.M, states.P, states.z
@@ -201,3 +218,15 @@ def test_node_velocities_equal_the_per_node_inverse_legendre_map(name):
     for a, b in zip(ours, theirs):
         if b is not None:
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=64 * EPS * float(np.max(np.abs(b))))
+
+
+@pytest.mark.parametrize("name, loops", [("user System, order 4", 0), ("quartic kinetic energy", 1)])
+def test_affine_residuals_are_solved_without_a_loop(name, loops):
+    """The member Newton sees from the Jacobian's components that a residual is affine (no entry
+    is a member array: the user System's momenta are linear in (ξ, ν)) and solves it with one
+    step and a refinement, compiling no fallback loop; a nonlinear one keeps its loop."""
+    from vi_jax.engine._node_velocities import node_velocities
+
+    system, states = _node_problem(name)
+    jaxpr = jax.make_jaxpr(lambda s: node_velocities(system, s, 64 * EPS, 20))(states)
+    assert str(jaxpr).count("while[") == loops

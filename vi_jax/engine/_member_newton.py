@@ -129,16 +129,28 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             out = out & jnp.isfinite(c)
         return out
 
-    def value_and_lu(z):
+    def value_and_jacobian_rows(z):
         if value_and_jacobian is not None:
-            r, scale, jac = value_and_jacobian(z)
-            return r, scale, lu(jac)
+            return value_and_jacobian(z)
         r, scale = fn(z)
         _, lin = jax.linearize(residual_only, z)
-        return r, scale, lu(columns(lin, z))
+        return r, scale, columns(lin, z)
+
+    def value_and_lu(z):
+        r, scale, jac = value_and_jacobian_rows(z)
+        return r, scale, lu(jac)
 
     def solve(_, z):
-        r, scale, factors = value_and_lu(z)
+        r, scale, jac = value_and_jacobian_rows(z)
+        factors = lu(jac)
+        if all(jnp.ndim(entry) == 0 for row in jac for entry in row):
+            # No Jacobian entry is a member array, so none depends on z: fn is affine and one
+            # Newton step solves it (e.g. the inverse Legendre map of a kinetic energy quadratic
+            # in the velocities); one more step with the same factors refines it. No loop and
+            # no fallback to compile.
+            z = _axpy(-1.0, lu_solve(factors, r), z)
+            r, scale = fn(z)
+            return _finish(jnp.ones(jnp.shape(scale), jnp.int32), _axpy(-1.0, lu_solve(factors, r), z), r, scale)
         n_chord = max(min(chord_iterations, max_iterations - 1), 0)
         for _ in range(1 + n_chord):
             z = _axpy(-1.0, lu_solve(factors, r), z)
@@ -168,7 +180,11 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             i, z_, r, scale = state
             return i, _axpy(-1.0, lu_solve(factors, r), z_), r, scale
 
-        i, z, r, scale = jax.lax.cond(jnp.any(active_of(i, r, scale)), fallback, common, (i, z, r, scale))
+        return _finish(*jax.lax.cond(jnp.any(active_of(i, r, scale)), fallback, common, (i, z, r, scale)))
+
+    def _finish(i, z, r, scale):
+        """z with per-member (iterations, relative residual, result), r the residual before the
+        last correction."""
         rel = norm(r) / jnp.where(scale > 0, scale, 1.0)
         ok = finite(z) & finite(r)
         result = jnp.where(~ok, NONFINITE, jnp.where(rel <= rtol, SUCCESS, MAX_ITERATIONS))
