@@ -227,10 +227,10 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
 
 
 def _check_failure(sol: Solution, save_every: int) -> Solution:
-    failed = sol.result != SUCCESS
-    if val.is_concrete(failed):
-        if bool(jnp.any(failed)):
-            k = int(np.argmax(np.asarray(failed)))
+    if val.is_concrete(sol.result):
+        failed = np.asarray(sol.result) != SUCCESS  # on the host: no program to compile
+        if failed.any():
+            k = int(np.argmax(failed))
             code = int(sol.result[k])
             steps = f"step {k - 1}" if save_every == 1 else f"steps {(k - 1) * save_every}..{k * save_every - 1}"
             raise NewtonFailure(
@@ -240,4 +240,4 @@ def _check_failure(sol: Solution, save_every: int) -> Solution:
                 "or pass throw=False to inspect the partial Solution."
             )
         return sol
-    return eqx.error_if(sol, jnp.any(failed), "DEP step failed (Newton did not converge or τ singular); pass throw=False to inspect Solution.result")
+    return eqx.error_if(sol, jnp.any(sol.result != SUCCESS), "DEP step failed (Newton did not converge or τ singular); pass throw=False to inspect Solution.result")
