@@ -44,7 +44,22 @@ def _const(value, dtype):
 # --- elementwise primitives with constant folding -----------------------------------------
 
 
+# Folded on the host: operations numpy rounds exactly as XLA does (IEEE arithmetic on equal
+# dtypes, comparisons); JAX would compile a small program for the first fold of each.
+_HOST_FOLDS = {"add": np.add, "add_any": np.add, "sub": np.subtract, "mul": np.multiply, "neg": np.negative,
+               "eq": np.equal, "ne": np.not_equal, "lt": np.less, "le": np.less_equal, "gt": np.greater, "ge": np.greater_equal}
+
+
+def _exact_conversion(value, new_dtype):
+    """A conversion that is exact or IEEE rounding in numpy as in XLA (to a floating type)."""
+    return jnp.issubdtype(new_dtype, jnp.floating) and (jnp.issubdtype(value.dtype, jnp.floating) or value.dtype.itemsize <= 4 or value.dtype == bool)
+
+
 def _fold(prim, params, values):
+    if prim.name in _HOST_FOLDS and len({v.dtype for v in values}) == 1:
+        return _HOST_FOLDS[prim.name](*values)
+    if prim.name == "convert_element_type" and _exact_conversion(values[0], params["new_dtype"]):
+        return values[0].astype(params["new_dtype"])
     with jax.ensure_compile_time_eval():
         out = prim.bind(*(jnp.asarray(v) for v in values), **params)
     return np.asarray(out)[()]
