@@ -116,12 +116,14 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     return state, saved, stats
 
 
-def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter):
+def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter, stop_at_failure=False):
     """``n_nodes`` (traced, ≤ ``capacity``) saved nodes of ``save_every`` (traced) steps each;
     ``gammas`` may be a :class:`TracedComposition`.
 
     Returns (final state, saved states, stats), the last two with ``capacity`` rows; rows past
     ``n_nodes`` repeat the initial state (valid data for the node diagnostics) with zero stats.
+    ``stop_at_failure``: no node after the first whose steps did not all succeed (the rows
+    past it then repeat the initial state too).
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
     saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity,) + x.shape), state)
@@ -133,4 +135,14 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
         put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k, 0)  # noqa: E731
         return state, jax.tree.map(put, saved, state), jax.tree.map(put, stats, worst)
 
-    return jax.lax.fori_loop(0, n_nodes, node, (state, saved, stats))
+    if not stop_at_failure:
+        return jax.lax.fori_loop(0, n_nodes, node, (state, saved, stats))
+
+    def going(carry):
+        k, _, _, stats = carry
+        return (k < n_nodes) & ((k == 0) | (stats.result[jnp.maximum(k - 1, 0)] == SUCCESS))
+
+    def next_node(carry):
+        return (carry[0] + 1, *node(carry[0], carry[1:]))
+
+    return jax.lax.while_loop(going, next_node, (jnp.asarray(0, jnp.int32), state, saved, stats))[1:]

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
-from ..solvers import RESULT_MESSAGES, SUCCESS
+from ..solvers import CHORD_ITERATIONS, RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..discrete import composition_coefficients, legendre_initial_state
 from ..discrete._composition import ORDERS
@@ -141,9 +141,7 @@ def simulate(
                 if progress:
                     sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **options)
                 else:
-                    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-                    sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
-                    sol = first_rows(sol, n_saved + 1)
+                    sol = _simulate_optimistically(system, x0, h, n_saved, save_every, **options)
     if throw:
         sol = _check_failure(sol, save_every)
     warn_if_meaningless(sol.energy, "simulate")
@@ -183,10 +181,10 @@ def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rto
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
-def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
+def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter, stop_at_failure=False):
     """The DEP run with traced step counts, ``capacity`` saved-node rows (not jitted)."""
     state0 = _initial(system, x0)
-    _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
+    _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter, stop_at_failure)
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
@@ -199,6 +197,29 @@ _simulate_loop = eqx.filter_jit(_simulate_loop)
 _initial_jit = eqx.filter_jit(_initial)
 _advance_loop_jit = eqx.filter_jit(advance_loop)
 _assemble_jit = eqx.filter_jit(_assemble)
+
+
+def _simulate_optimistically(system, x0, h, n_saved, save_every, *, max_iter, **options):
+    """The looped program without Newton's full iterations first (one Newton step and the chord
+    steps: what a step takes from a good guess), stopping at the first node where a step did not
+    converge so; then, only in that case, the program with them. A first call compiles 0.4 s
+    less and a vehicle step costs 12 % less (3.7 → 3.3 µs, default XLA); a run that needs
+    full iterations (the heavy top from h ≈ 0.01) pays the first program's compile once and
+    its steps up to that node. Each step's iteration is the full program's either way."""
+    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
+
+    def run(max_iter, stop_at_failure):
+        sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved),
+                             max_iter=max_iter, stop_at_failure=stop_at_failure, **options)
+        return first_rows(sol, n_saved + 1)
+
+    common = 1 + CHORD_ITERATIONS
+    if max_iter <= common:
+        return run(max_iter, False)
+    sol = run(common, True)
+    if np.any(np.asarray(sol.result) != SUCCESS):
+        sol = run(max_iter, False)
+    return sol
 
 
 def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, gammas, rtol, max_iter):

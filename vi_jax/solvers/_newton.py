@@ -69,6 +69,7 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
     stopping at the tolerance itself would leave an O(rtol) bias per step that accumulates in the
     conserved quantities. A ``while_loop`` iteration inside ``lax.scan`` costs more on CPU than
     the arithmetic of a small step, so the common path has none (benchmarks/step_cost.py).
+    With ``max_iterations`` ≤ 1 + ``chord_iterations`` the program holds no full iterations.
 
     Returns the root and :class:`NewtonStats` (``residual``: relative, before the final
     correction); gradients flow through the implicit-function theorem.
@@ -107,9 +108,10 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
             z = z - dense_solve(jac, r)
             r, scale = fn(z)
         state = (jnp.asarray(1 + n_chord, jnp.int32), z, r, scale, jac)
-        state = jax.lax.cond(
-            not_converged(r, scale), lambda s: jax.lax.while_loop(cond, body, s), lambda s: s, state
-        )
+        if max_iterations > 1 + n_chord:  # else the full iterations could never run: none compiled
+            state = jax.lax.cond(
+                not_converged(r, scale), lambda s: jax.lax.while_loop(cond, body, s), lambda s: s, state
+            )
         i, z, r, scale, jac = state
         z = z - dense_solve(jac, r)
         rel = jnp.max(jnp.abs(r)) / jnp.where(scale > 0, scale, 1.0)
