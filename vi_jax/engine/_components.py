@@ -52,7 +52,7 @@ _HOST_FOLDS = {"add": np.add, "add_any": np.add, "sub": np.subtract, "mul": np.m
 
 def _exact_conversion(value, new_dtype):
     """A conversion that is exact or IEEE rounding in numpy as in XLA (to a floating type)."""
-    return jnp.issubdtype(new_dtype, jnp.floating) and (jnp.issubdtype(value.dtype, jnp.floating) or value.dtype.itemsize <= 4 or value.dtype == bool)
+    return jnp.issubdtype(new_dtype, jnp.floating) and (jnp.issubdtype(value.dtype, jnp.floating) or value.dtype.itemsize <= 4)
 
 
 def _fold(prim, params, values):

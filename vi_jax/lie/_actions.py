@@ -76,7 +76,8 @@ class LinearAction(eqx.Module):
         is decided at trace time, so a₀ must be concrete (not traced)."""
         if isinstance(a0, jax.core.Tracer):
             raise ValueError("advected_reference: expected a concrete a₀ (not traced) for the isotropy algebra")
-        C = np.asarray(_infinitesimal_matrix(self, np.asarray(a0, dtype)))
+        a0 = np.asarray(a0)
+        C = np.asarray(_infinitesimal_matrix(self, a0.astype(jax.dtypes.canonicalize_dtype(a0.dtype if dtype is None else dtype))))
         _, s, vt = np.linalg.svd(C, full_matrices=True)
         tol = max(C.shape) * np.finfo(C.dtype).eps * (s[0] if s.size else 0.0)
         rank = int(np.sum(s > tol))
