@@ -123,18 +123,25 @@ def test_generated_step_has_no_small_dense_algebra():
     rule, _ = composition_coefficients(order)
 
     params, static, _, layout, carry = _start(system, states, axes, jnp.float64, N_MEMBERS)
-    step = make_step(static, params, difference_map(tau), rule, 1e-14, 20, N_MEMBERS, layout)
 
-    names = set()
+    def primitives(max_iterations):
+        step = make_step(static, params, difference_map(tau), rule, 1e-14, max_iterations, N_MEMBERS, layout)
+        names = set()
 
-    def visit(jaxpr):
-        for eqn in jaxpr.eqns:
-            names.add(eqn.primitive.name)
-            for sub in jax.extend.core.jaxprs_in_params(eqn.params):
-                visit(sub)
+        def visit(jaxpr):
+            for eqn in jaxpr.eqns:
+                names.add(eqn.primitive.name)
+                for sub in jax.extend.core.jaxprs_in_params(eqn.params):
+                    visit(sub)
 
-    visit(jax.make_jaxpr(step)(carry, jnp.asarray(h)).jaxpr)
-    assert "mul" in names and "dot_general" not in names
+        visit(jax.make_jaxpr(step)(carry, jnp.asarray(h)).jaxpr)
+        return names
+
+    names = primitives(20)
+    assert "mul" in names and "dot_general" not in names and "while" in names
+    # At most one Newton and two chord steps: the fallback iterations could never run, and
+    # none is compiled (as in vj.simulate's Newton).
+    assert "while" not in primitives(3)
 
 
 def test_generated_step_gradients_equal_the_vmap_path():

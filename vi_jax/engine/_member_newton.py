@@ -180,6 +180,8 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             i, z_, r, scale = state
             return i, _axpy(-1.0, lu_solve(factors, r), z_), r, scale
 
+        if max_iterations <= 1 + n_chord:  # the full iterations could never run: none compiled
+            return _finish(*common((i, z, r, scale)))
         return _finish(*jax.lax.cond(jnp.any(active_of(i, r, scale)), fallback, common, (i, z, r, scale)))
 
     def _finish(i, z, r, scale):
