@@ -6,6 +6,7 @@ the order conditions are those of the free Lie algebra); the default orders conv
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -16,6 +17,7 @@ from scipy.integrate import solve_ivp
 import vi_jax as vj
 from vi_jax import continuous
 from vi_jax.discrete import _splitting as S
+from vi_jax.discrete import _splitting_pieces as sp
 from vi_jax.discrete._splitting_pieces import from_phase, piece_flows, separable_parts, to_phase
 from vi_jax.lie import SOn
 
@@ -72,6 +74,61 @@ def test_pieces_generate_the_continuous_vector_field(name):
         scale = float(jnp.max(jnp.abs(want))) + 1.0
         # Both sides are a few dozen products of O(1) numbers (plus the field's 6×6 solve).
         assert float(jnp.max(jnp.abs(got - want))) <= 1e-12 * scale, (got, want)
+
+
+# --- the rotations: small-angle polynomials and the SO(3) form -----------------------------------
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_small_angle_cos_sin(dtype):
+    """The Taylor polynomials the loop-option plan uses for |θ| ≤ 1 equal cos and sin: their
+    remainders are below 1/20! ≈ 4e-19 (values) and 1/19! ≈ 8e-18 (derivatives), so only the
+    rounding of ten terms ≤ 1 differs (a few ulp)."""
+    theta = np.linspace(-1.0, 1.0, 2001).astype(dtype)
+    (c, s), (dc, ds) = jax.jit(lambda t: jax.jvp(sp._cos_sin_small, (t,), (jnp.ones_like(t),)))(jnp.asarray(theta))
+    assert c.dtype == s.dtype == dtype
+    exact = theta.astype(np.float64)
+    bound = 4 * np.finfo(dtype).eps
+    for got, want in ((c, np.cos(exact)), (s, np.sin(exact)), (dc, -np.sin(exact)), (ds, np.cos(exact))):
+        assert np.max(np.abs(np.asarray(got, np.float64) - want)) <= bound
+
+
+def _random_phase(parts, seed):
+    rng = np.random.default_rng(seed)
+    G = parts.system.group
+    P = jnp.asarray(rng.normal(size=3)) if parts.system.has_additional else None
+    q = jnp.asarray(rng.normal(size=3)) if parts.system.has_additional else None
+    return sp.Phase(G.exp(jnp.asarray(rng.normal(size=G.dim))), q, jnp.asarray(rng.normal(size=G.dim)), P)
+
+
+@pytest.mark.parametrize("system", [VEHICLE, TOP], ids=["vehicle", "heavy top"])
+def test_rotation_plans_agree(system, monkeypatch):
+    """``rotate`` under the loop-option plan (the polynomials behind a ``lax.cond``) equals the
+    default plan (``jnp.cos``/``jnp.sin``) on both sides of the branch |θ| = 1, values and
+    t-derivatives; and on SO(3) its one product on the rows of (g', Π', P') equals the per-array
+    form with Ad* from the algebra's coordinate pairs (the SO(n) form). Each side is a few
+    products of O(1) numbers: agreement to 64ε."""
+    parts = separable_parts(system)
+    phase = _random_phase(parts, 3)
+
+    def flows(parts, plan):
+        monkeypatch.setattr(sp, "loop_option_requested", lambda: plan)
+
+        @jax.jit
+        def run(parts, phase):
+            out = []
+            for k in range(3):
+                theta_per_t = phase.Pi[k] * parts.inv_inertia[k]
+                for angle in (0.3, 2.5):  # |θ| below and above 1
+                    t = angle / theta_per_t
+                    out.append(jax.jvp(lambda t, k=k: sp.rotate(parts, k, t, phase), (t,), (jnp.ones_like(t),)))
+            return out
+
+        return run(parts, phase)
+
+    reference = flows(parts, False)
+    per_array = eqx.tree_at(lambda p: p.frame, parts, replace=None)
+    for got in (flows(parts, True), flows(per_array, False)):
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(reference)):
+            assert float(jnp.max(jnp.abs(a - b))) <= 64 * np.finfo(np.float64).eps * (1 + float(jnp.max(jnp.abs(b))))
 
 
 def test_principal_frame():

@@ -11,7 +11,9 @@ computation initialises the CPU backend, so this must run before any JAX computa
 
 import os
 
-FAST_LOOPS_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+from .._xla_flags import LOOP_OPTION
+
+FAST_LOOPS_FLAG = f"--xla_backend_extra_options={LOOP_OPTION}=1000000000"
 
 
 def enable_fast_cpu_loops() -> bool:
@@ -20,6 +22,6 @@ def enable_fast_cpu_loops() -> bool:
     computation ran before in this process. The ``vi-jax`` command line calls it."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_backend_extra_options" in flags:
-        return "xla_cpu_small_while_loop_byte_threshold" in flags
+        return LOOP_OPTION in flags
     os.environ["XLA_FLAGS"] = f"{flags} {FAST_LOOPS_FLAG}".strip()
     return True
