@@ -6,6 +6,8 @@ process: it decides how ``vi_jax.discrete._splitting_pieces.rotate`` is written.
 - ``one product, jnp trig``: on SO(3) the rows of g', Π'ᵀ and P'ᵀ turned by one product;
 - ``one product, polynomial``: the same with |θ| ≤ 1 taking the Taylor polynomials behind a
   ``lax.cond`` (``_cos_sin`` under the loop option);
+- ``columns, …``: the rows turned column by column (two updated columns stacked with the third)
+  rather than by a product;
 - ``library``: ``rotate`` as shipped (the plan it picks for this XLA configuration).
 
 Vehicle and heavy top, order 6 (Blanes–Moan, 10 stages), h = 0.25 / 0.02; per step = (time of
@@ -39,7 +41,7 @@ def _trig(theta):
 
 
 def _polynomial(theta):
-    return jax.lax.cond(jnp.abs(theta) <= 1, sp._cos_sin_small, _trig, theta)
+    return sp._cos_sin(theta, loop_option=True)
 
 
 def three_products(parts, k, t, s):
@@ -50,12 +52,15 @@ def three_products(parts, k, t, s):
     return sp.Phase(sp.matmul(s.g, Et.T), s.q, sp.matvec(sp._planar(c, sn, parts.pairs[k], 3), s.Pi), P)
 
 
-def one_product(cos_sin):
+def rows_turned(cos_sin, by_columns=False):
     def rotate(parts, k, t, s):
         c, sn = cos_sin(t * (s.Pi[k] * parts.inv_inertia[k]))
         i, j = parts.planes[k]
         rows = jnp.concatenate([s.g, s.Pi[None]] + ([] if s.P is None else [s.P[None]]))
-        rows = sp.matmul(rows, sp._planar(c, sn, ((i, j, 1.0),), 3).T)
+        if by_columns:
+            rows = sp._turn_columns(rows, i, j, c, sn)
+        else:
+            rows = sp.matmul(rows, sp._planar(c, sn, ((i, j, 1.0),), 3).T)
         return sp.Phase(rows[:3], s.q, rows[3], None if s.P is None else rows[4])
 
     return rotate
@@ -63,8 +68,10 @@ def one_product(cos_sin):
 
 VARIANTS = {
     "three products, jnp trig": three_products,
-    "one product, jnp trig": one_product(_trig),
-    "one product, polynomial": one_product(_polynomial),
+    "one product, jnp trig": rows_turned(_trig),
+    "one product, polynomial": rows_turned(_polynomial),
+    "columns, jnp trig": rows_turned(_trig, by_columns=True),
+    "columns, polynomial": rows_turned(_polynomial, by_columns=True),
     "library": sp.rotate,
 }
 
