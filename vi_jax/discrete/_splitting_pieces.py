@@ -38,7 +38,7 @@ from .._system import AbstractSystem
 from .._xla_flags import loop_option_requested
 from ..lie import SO3, SOn
 from ..lie._small import matmul, matvec
-from ._separability import enforce, hessian_blocks, reference_point, separability_residuals
+from ._separability import enforce, hessian_blocks, positive_definite, reference_point, separability_residuals
 
 
 class Phase(NamedTuple):
@@ -112,7 +112,7 @@ def principal_axes(J):
     rows = jnp.argmax(jnp.abs(v), axis=0)
     perm = (rows[None, :] == jnp.arange(d)[:, None]).astype(v.dtype)  # perm[i, k]: eigenvector k ~ axis i
     perm = jnp.where(jnp.all(jnp.sum(perm, axis=1) == 1), perm, eye)
-    U, w = v @ perm.T, perm @ w
+    U, w = matmul(v, perm.T), matvec(perm, w)
     U = U * jnp.where(jnp.diagonal(U) < 0, -1.0, 1.0).astype(U.dtype)
     det = jnp.dot(U[:, 0], jnp.cross(U[:, 1], U[:, 2]))
     flip = jnp.where(det < 0, 1.0 - 2.0 * eye[jnp.argmin(jnp.abs(jnp.diagonal(U)))], 1.0)
@@ -130,6 +130,20 @@ def _principal_axes_jvp(primals, tangents):
     return (U, w), (U @ (F * B), jnp.diagonal(B))
 
 
+def _spd_inverse(M):
+    """(M⁻¹, a quantity > 0 exactly when the symmetric M is positive definite). For 3×3 the
+    adjugate (columns m₁×m₂, m₂×m₀, m₀×m₁ of the rows m_i) and Sylvester's leading minors, a few
+    fused elementwise operations instead of a LAPACK factorisation and eigendecomposition per
+    call (the set-up of every splitting call of a traced scene)."""
+    M = 0.5 * (M + M.T)
+    if M.shape != (3, 3):
+        return jnp.linalg.inv(M), jnp.linalg.eigvalsh(M)[0]
+    adjugate = jnp.stack([jnp.cross(M[1], M[2]), jnp.cross(M[2], M[0]), jnp.cross(M[0], M[1])], axis=1)
+    det = jnp.dot(M[0], adjugate[:, 0])
+    minors = jnp.stack([M[0, 0], M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0], det])
+    return adjugate / det, jnp.min(minors)
+
+
 @eqx.filter_jit
 def _derive(system, dtype):
     """J, M⁻¹ and the principal frame, and the separability residuals (one compiled function:
@@ -137,15 +151,19 @@ def _derive(system, dtype):
     G = system.group
     J, M, _ = hessian_blocks(system, *reference_point(system, dtype))
     # The checks need values only: no derivatives of them traced under jax.grad.
-    frozen = jax.lax.stop_gradient((system, J, M))
-    residuals = separability_residuals(*frozen, diagonal=isinstance(G, SOn))
+    residuals = separability_residuals(*jax.lax.stop_gradient((system, J, M)), diagonal=isinstance(G, SOn))
     J = J.astype(dtype)
-    inv_mass = None if M is None else jnp.linalg.inv(M.astype(dtype))
     if isinstance(G, SO3):
         U, moments = principal_axes(J)
-        inv_mass = None if M is None else U.T @ inv_mass @ U
     else:
         U, moments = None, jnp.diagonal(J)
+    residuals.append(positive_definite("J = ∂²ℓ/∂ξ²", jax.lax.stop_gradient(jnp.min(moments))))
+    inv_mass = None
+    if M is not None:
+        inv_mass, smallest = _spd_inverse(M.astype(dtype))
+        residuals.append(positive_definite("M = ∂²ℓ/∂ν²", jax.lax.stop_gradient(smallest)))
+        if U is not None:
+            inv_mass = matmul(U.T, matmul(inv_mass, U))
     return U, 1.0 / moments, inv_mass, residuals
 
 

@@ -164,8 +164,11 @@ def build_runs(study: Study):
 def _trajectory(run):
     """(y = (g, ξ, q, ν) with a leading node axis, steps taken, succeeded) of a finished run."""
     if run.peer.startswith("vi_jax"):
-        sol = run.output
-        return (sol.g, sol.xi, sol.q, sol.nu), run.setting["n_steps"], bool(np.all(sol.result == 0))
+        if run.section == "work_precision":  # the program returned (g, ξ, q, ν), result
+            ys, result = run.output
+        else:
+            ys, result = (run.output.g, run.output.xi, run.output.q, run.output.nu), run.output.result
+        return ys, run.setting["n_steps"], bool(np.all(result == 0))
     ys, n_steps, ok = run.output
     return ys, int(n_steps), bool(ok)
 
