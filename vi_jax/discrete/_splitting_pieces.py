@@ -320,11 +320,14 @@ def rotate(parts, k, t, s: Phase) -> Phase:
     loop_option = loop_option_requested()
     c, sn = _cos_sin(t * (s.Pi[k] * parts.inv_inertia[k]), loop_option)
     i, j = parts.planes[k]
-    E = _planar(c, sn, ((i, j, 1.0),), s.g.shape[-1]).T
     if parts.frame is not None:
         rows = jnp.concatenate([s.g, s.Pi[None]] + ([] if s.P is None else [s.P[None]]))
-        rows = _turn_columns(rows, i, j, c, sn) if loop_option else matmul(rows, E)
+        if loop_option:
+            rows = _turn_columns(rows, i, j, c, sn)
+        else:
+            rows = matmul(rows, _planar(c, sn, ((i, j, 1.0),), 3).T)
         return Phase(rows[:3], s.q, rows[3], None if s.P is None else rows[4])
+    E = _planar(c, sn, ((i, j, 1.0),), s.g.shape[-1]).T
     P = None if s.P is None else matvec(E.T, s.P)
     return Phase(matmul(s.g, E), s.q, matvec(_planar(c, sn, parts.pairs[k], s.Pi.shape[-1]), s.Pi), P)
 
