@@ -22,11 +22,12 @@ RELATIVE_TOLERANCE_IN_EPS = 1000
 
 
 def hessian_blocks(system, xi, n, nu, a):
-    """(∂²ℓ/∂ξ², ∂²ℓ/∂ν², ∂²ℓ/∂ξ∂ν) at a point (None blocks without additional dynamics)."""
+    """(∂²ℓ/∂ξ², ∂²ℓ/∂ν²) at a point (M = None without additional dynamics); the cross block is
+    checked by values (:func:`separability_residuals`)."""
     if nu is None:
-        return jax.hessian(system.lagrangian)(xi, n, nu, a), None, None
-    (H_xx, H_xn), (_, H_nn) = jax.hessian(system.lagrangian, argnums=(0, 2))(xi, n, nu, a)
-    return H_xx, H_nn, H_xn
+        return jax.hessian(system.lagrangian)(xi, n, nu, a), None
+    (H_xx, _), (_, H_nn) = jax.hessian(system.lagrangian, argnums=(0, 2))(xi, n, nu, a)
+    return H_xx, H_nn
 
 
 def reference_point(system, dtype):

@@ -149,7 +149,7 @@ def _derive(system, dtype):
     """J, M⁻¹ and the principal frame, and the separability residuals (one compiled function:
     evaluated op by op, the checks cost seconds of dispatch)."""
     G = system.group
-    J, M, _ = hessian_blocks(system, *reference_point(system, dtype))
+    J, M = hessian_blocks(system, *reference_point(system, dtype))
     # The checks need values only: no derivatives of them traced under jax.grad.
     residuals = separability_residuals(*jax.lax.stop_gradient((system, J, M)), diagonal=isinstance(G, SOn))
     J = J.astype(dtype)
@@ -327,9 +327,9 @@ def rotate(parts, k, t, s: Phase) -> Phase:
         else:
             rows = matmul(rows, _planar(c, sn, ((i, j, 1.0),), 3).T)
         return Phase(rows[:3], s.q, rows[3], None if s.P is None else rows[4])
-    E = _planar(c, sn, ((i, j, 1.0),), s.g.shape[-1]).T
-    P = None if s.P is None else matvec(E.T, s.P)
-    return Phase(matmul(s.g, E), s.q, matvec(_planar(c, sn, parts.pairs[k], s.Pi.shape[-1]), s.Pi), P)
+    Et = _planar(c, sn, ((i, j, 1.0),), s.g.shape[-1])
+    P = None if s.P is None else matvec(Et, s.P)
+    return Phase(matmul(s.g, Et.T), s.q, matvec(_planar(c, sn, parts.pairs[k], s.Pi.shape[-1]), s.Pi), P)
 
 
 def piece_flows(parts):
