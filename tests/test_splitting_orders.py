@@ -19,7 +19,7 @@ from vi_jax import continuous
 from vi_jax.discrete import _splitting as S
 from vi_jax.discrete import _splitting_pieces as sp
 from vi_jax.discrete._splitting_pieces import from_phase, piece_flows, separable_parts, to_phase
-from vi_jax.lie import SOn
+from vi_jax.lie import SO3, SOn
 
 VEHICLE = vj.models.UnderwaterVehicle()
 TOP = vj.models.HeavyTop()
@@ -38,11 +38,14 @@ GENERATOR_SCENES = {
 }
 
 
-@pytest.mark.parametrize("name", list(GENERATOR_SCENES))
-def test_pieces_generate_the_continuous_vector_field(name):
+@pytest.mark.parametrize(
+    "name, sphere", [(name, False) for name in GENERATOR_SCENES] + [(name, True) for name in GENERATOR_SCENES if "SO(4)" not in name]
+)
+def test_pieces_generate_the_continuous_vector_field(name, sphere):
     """Σ_pieces d/dt|₀ flow(t, x) = the continuous EP field (vi_jax.continuous) in momentum form:
-    ġ, q̇ and Π̇ = Jξ̇, Ṗ = Mν̇ (J, M the Hessians of ℓ), at a random state. Signs and factors of
-    every piece are checked here; the composition then has the order of its coefficients."""
+    ġ, q̇ and Π̇ = Jξ̇, Ṗ = Mν̇ (J, M the Hessians of ℓ), at a random state, with planar rotations
+    about the three principal axes or the sphere piece and two planar rotations. Signs and factors
+    of every piece are checked here; the composition then has the order of its coefficients."""
     system = GENERATOR_SCENES[name]()
     G = system.group
     rng = np.random.default_rng(1)
@@ -66,7 +69,7 @@ def test_pieces_generate_the_continuous_vector_field(name):
             expected[3] = jax.hessian(system.lagrangian, argnums=2)(x.xi, n, y[3], a) @ nu_dot
         return total, expected
 
-    total, expected = both_sides(separable_parts(system), system, x)
+    total, expected = both_sides(separable_parts(system, sphere=sphere), system, x)
     for got, want in zip(total, expected):
         if want is None:
             assert got is None
@@ -131,6 +134,45 @@ def test_rotation_plans_agree(system, monkeypatch):
             assert float(jnp.max(jnp.abs(a - b))) <= 64 * np.finfo(np.float64).eps * (1 + float(jnp.max(jnp.abs(b))))
 
 
+@pytest.mark.parametrize("system", [VEHICLE, TOP], ids=["vehicle", "heavy top"])
+def test_sphere_plans_agree(system, monkeypatch):
+    """The sphere piece under both plans (the polynomials of u = θ² behind a ``lax.cond``; the
+    default plan's ``where``) equals g'·exp(φ̂) by ``SO3().exp``, φ = tΠ'/I₁, and E^TP', with Π'
+    unchanged, on both sides of the branch θ = 1, values and t-derivatives (64ε: a few
+    products of O(1) numbers); at Π' = 0 values and derivatives are finite (the double-where)."""
+    parts = separable_parts(system, sphere=True)
+    phase = _random_phase(parts, 5)
+
+    def flows(plan):
+        monkeypatch.setattr(sp, "loop_option_requested", lambda: plan)
+
+        @jax.jit
+        def run(parts, phase):
+            theta_per_t = jnp.linalg.norm(phase.Pi) * parts.inv_inertia[1]
+            return [jax.jvp(lambda t: sp.sphere(parts, t, phase), (a / theta_per_t,), (1.0 / theta_per_t,)) for a in (0.4, 2.5)]
+
+        return run(parts, phase)
+
+    @jax.jit
+    def by_exp(parts, phase):
+        def flow(t):
+            E = SO3().exp(t * parts.inv_inertia[1] * phase.Pi)
+            return sp.Phase(phase.g @ E, phase.q, phase.Pi, None if phase.P is None else E.T @ phase.P)
+
+        theta_per_t = jnp.linalg.norm(phase.Pi) * parts.inv_inertia[1]
+        return [jax.jvp(flow, (a / theta_per_t,), (1.0 / theta_per_t,)) for a in (0.4, 2.5)]
+
+    reference = by_exp(parts, phase)
+    for got in (flows(True), flows(False)):
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(reference)):
+            assert float(jnp.max(jnp.abs(a - b))) <= 64 * np.finfo(np.float64).eps * (1 + float(jnp.max(jnp.abs(b))))
+    at_rest = phase._replace(Pi=jnp.zeros(3))
+    for plan in (True, False):
+        monkeypatch.setattr(sp, "loop_option_requested", lambda: plan)
+        grad = jax.grad(lambda Pi: jnp.sum(sp.sphere(parts, 0.7, at_rest._replace(Pi=Pi)).g ** 2))(at_rest.Pi)
+        assert np.all(np.isfinite(grad))
+
+
 def test_principal_frame():
     """J = U diag(I) Uᵀ with U ∈ SO(3); a diagonal J keeps the body frame (U = I exactly)."""
     parts = separable_parts(vj.models.HeavyTop(inertia=FULL_INERTIA))
@@ -145,6 +187,13 @@ def test_principal_frame():
     np.testing.assert_allclose(
         np.asarray(separable_parts(VEHICLE).inv_mass), np.linalg.inv(VEHICLE.mass * np.eye(3) + VEHICLE.added_mass), rtol=1e-14
     )
+    # For the sphere piece the axes are relabelled cyclically: the middle moment on axis 1.
+    for inertia in (FULL_INERTIA, np.diag([5.0, 3.0, 4.0]), np.diag([1.0, 2.0, 3.0]), np.diag([2.0, 2.0, 1.0])):
+        parts = separable_parts(vj.models.HeavyTop(inertia=inertia), sphere=True)
+        U, moments = np.asarray(parts.frame), 1 / np.asarray(parts.inv_inertia)
+        assert moments[1] == np.sort(moments)[1]
+        assert abs(np.linalg.det(U) - 1) <= 1e-15
+        np.testing.assert_allclose(U @ np.diag(moments) @ U.T, inertia, atol=1e-14)
 
 
 # --- every composition has its order ------------------------------------------------------------
@@ -256,40 +305,53 @@ def _runner(pieces):
     return run
 
 
-def run_steps(system, x0, h, n, order):
-    """n steps of the default method of ``order`` (in its default arrangement)."""
-    method, arrangement = S.resolve(order)
+def run_steps(system, x0, h, n, order, arrangement=None):
+    """n steps of the default method of ``order`` (in its default arrangement, or ``arrangement``)."""
+    method, arrangement = S.resolve(order, arrangement=arrangement)
     table = S.stage_table(method)
     longest = max(len(S.stage_table(S.resolve(o)[0])) for o in S.ORDERS)
     padded = np.vstack([np.zeros((longest - len(table), 3)), table])
-    pieces = S.arrange(("V", "T", 0, 1, 2) if system.has_additional else ("V", 0, 1, 2), arrangement)
-    return _runner(pieces)(separable_parts(system), x0, jnp.asarray(h), n, jnp.asarray(padded), jnp.asarray(table[0, 0]))
+    sphere = "S" in arrangement
+    names = (("V", "T") if system.has_additional else ("V",)) + (("S", 0, 2) if sphere else (0, 1, 2))
+    pieces = S.arrange(names, arrangement)
+    parts = separable_parts(system, sphere=sphere)
+    return _runner(pieces)(parts, x0, jnp.asarray(h), n, jnp.asarray(padded), jnp.asarray(table[0, 0]))
 
 
 CONVERGENCE = {
-    # scene, T, step counts per order (errors between ~1e-2 and ~1e-10, above the reference's 1e-13)
-    "vehicle": (VEHICLE, 20.0, {2: (80, 160, 320), 4: (20, 40, 80), 6: (20, 40, 80), 8: (20, 40, 80)}),
-    "heavy top": (TOP, 1.0, {2: (50, 100, 200), 4: (25, 50, 100), 6: (15, 30, 60), 8: (8, 16, 32)}),
+    # scene, T, step counts per order (errors between ~1e-2 and ~1e-10, above the reference's
+    # 1e-13) for the planar rotations and, where they differ, for the sphere piece (1,000× smaller
+    # errors on the symmetric top: its free motion is then exact)
+    "vehicle": (VEHICLE, 20.0, {2: (80, 160, 320), 4: (20, 40, 80), 6: (20, 40, 80), 8: (30, 60, 120)}, {}),
+    "heavy top": (
+        TOP, 1.0, {2: (50, 100, 200), 4: (25, 50, 100), 6: (15, 30, 60), 8: (8, 16, 32)},
+        {4: (10, 20, 40), 6: (4, 8, 16), 8: (2, 4, 8)},
+    ),
 }
 
 
 @functools.cache
 def _reference(name):
-    system, T, _ = CONVERGENCE[name]
+    system, T, _, _ = CONVERGENCE[name]
     return hand_reference(system, T)
 
 
+@pytest.mark.parametrize("sphere", [True, False], ids=["sphere piece", "planar rotations"])
 @pytest.mark.parametrize("order", S.ORDERS)
 @pytest.mark.parametrize("name", list(CONVERGENCE))
-def test_convergence_order(name, order):
-    system, T, counts = CONVERGENCE[name]
+def test_convergence_order(name, order, sphere):
+    """Fitted slope of the final-state error of the default method of each order, in its default
+    arrangement of the pieces (the sphere piece) and in the same without it."""
+    system, T, planar_counts, sphere_counts = CONVERGENCE[name]
+    counts = sphere_counts.get(order, planar_counts[order]) if sphere else planar_counts[order]
+    arrangement = S.resolve(order, sphere=sphere)[1]
     R_ref, q_ref = _reference(name)
     errors = []
-    for n in counts[order]:
-        g, q, _, _ = run_steps(system, system.initial_state(), T / n, n, order)
+    for n in counts:
+        g, q, _, _ = run_steps(system, system.initial_state(), T / n, n, order, arrangement)
         err = float(np.max(np.abs(np.asarray(g) - R_ref)))
         if q_ref is not None:
             err = max(err, float(np.max(np.abs(np.asarray(q) - q_ref))))
         errors.append(err)
-    slope = np.polyfit(np.log(np.asarray(counts[order], float)), np.log(errors), 1)[0]
+    slope = np.polyfit(np.log(np.asarray(counts, float)), np.log(errors), 1)[0]
     assert abs(-slope - order) <= 0.2, (errors, slope)

@@ -1,5 +1,6 @@
 """Explicit splitting of separable reduced Lagrangians: compositions of the exact flows of
-``_splitting_pieces`` (potential kick "V", translation "T", one rotation per principal axis).
+``_splitting_pieces`` (potential kick "V", translation "T", the sphere piece "S" on SO(3), one
+rotation per remaining principal axis).
 
 Every method is a composition Φ*_{α_s h}∘Φ_{β_s h}∘…∘Φ*_{α_1 h}∘Φ_{β_1 h} of the Lie–Trotter map
 Φ_t = X_m(t)∘…∘X_1(t) of the pieces X_1 (outermost) … X_m and its adjoint Φ*_t = X_1(t)∘…∘X_m(t)
@@ -25,6 +26,7 @@ import numpy as np
 from .. import _validation as val
 from .._saved_nodes import scan_saved_nodes
 from .._system import State
+from ..lie import SO3
 from ._splitting_pieces import from_phase, piece_flows, separable_parts, to_phase, velocities
 
 # --- composition coefficients (each checked for its order by tests/test_splitting.py) -------------
@@ -117,19 +119,22 @@ METHODS = {
     ),
 }
 
-# Pieces are named "V" (potential kick), "T" (translation) and 0, 1, … (rotation axes); an
-# arrangement lists them from the outermost to the innermost, "R" standing for the axes it does
-# not list, by index. Method and arrangement per order: the fastest to final-state errors
+# Pieces are named "V" (potential kick), "T" (translation), "S" (sphere, SO(3) only) and 0, 1, …
+# (rotation axes); an arrangement lists them from the outermost to the innermost, "R" standing
+# for the axes it does not list, by index. Method per order: the fastest to final-state errors
 # 1e-4 … 1e-10 on the vehicle at T = 50 (benchmarks/splitting_compositions.py, the same choice
-# with and without the XLA:CPU loop option). Within an order the methods differ by up to 3×, the
-# arrangements by up to 1.5× (("V", 1, 2, 0, "T") beats the default at order 2 by 1.15×, an
-# axis order tied to the vehicle's moments). The order-6 method is faster than the order-8 ones
-# down to errors of ~1e-9; at 1e-10 they tie.
+# with and without the XLA:CPU loop option; within an order the methods differ by up to 3×).
+# Arrangements (benchmarks/splitting_sphere_piece.py [--fast-loops]): with the sphere piece the
+# error at equal step is 66–20,000× smaller on the symmetric heavy top at orders 4–8 (its free
+# motion is then exact) and 1–3.6× smaller on the vehicle, for up to 17 % more per step with
+# the loop option (18–32 % without). Time to equal error, sphere ÷ planar: heavy top 0.17–0.79
+# (loop option) and 0.19–0.93 (default flags); vehicle 0.85–1.12 and 0.93–1.24. Each order
+# takes the sphere arrangement with the smallest vehicle error.
 DEFAULTS = {
-    2: ("strang", ("V", "R", "T")),
-    4: ("blanes_moan6", ("V", "T", "R")),
-    6: ("blanes_moan10", ("V", "T", "R")),
-    8: ("suzuki_umeno15", ("V", "R", "T")),
+    2: ("strang", ("V", "S", "R", "T")),
+    4: ("blanes_moan6", ("V", "T", "S", "R")),
+    6: ("blanes_moan10", ("V", "T", "S", "R")),
+    8: ("suzuki_umeno15", ("V", "S", "R", "T")),
 }
 ORDERS = tuple(DEFAULTS)
 
@@ -146,14 +151,17 @@ def arrange(names, arrangement):
     return tuple(order)
 
 
-def resolve(order, method=None, arrangement=None):
-    """(method, arrangement) for ``order``: the defaults of ``DEFAULTS`` where not given."""
+def resolve(order, method=None, arrangement=None, sphere=True):
+    """(method, arrangement) for ``order``: the defaults of ``DEFAULTS`` where not given; without
+    ``sphere`` (scenes off SO(3)) a default arrangement drops the sphere piece "S"."""
     val.check_choice("order", order, ORDERS)
     if method is not None:
         val.check_choice("method", method, tuple(METHODS))
         if METHODS[method][0] != order:
             raise ValueError(f"method: {method!r} has order {METHODS[method][0]}, but order={order!r} was asked for")
-    return method or DEFAULTS[order][0], tuple(arrangement or DEFAULTS[order][1])
+    if arrangement is None:
+        arrangement = tuple(p for p in DEFAULTS[order][1] if p != "S" or sphere)
+    return method or DEFAULTS[order][0], tuple(arrangement)
 
 
 # --- states --------------------------------------------------------------------------------------
@@ -235,7 +243,9 @@ def _first(flows, order, beta1, h, s):
 def splitting_step(parts, h, state: SplittingState, order: int = 2, *, method=None, arrangement=None) -> SplittingState:
     """One step of the splitting method of ``order`` (or the named ``method``, pieces in
     ``arrangement``) on the body-frame state; ``parts`` from ``separable_parts(system)``."""
-    method, arrangement = resolve(order, method, arrangement)
+    method, arrangement = resolve(order, method, arrangement, parts.sphere)
+    if ("S" in arrangement) != parts.sphere:
+        raise ValueError(f"arrangement: {arrangement!r} needs separable_parts(..., sphere={'S' in arrangement})")
     flows = piece_flows(parts)
     pieces = arrange(tuple(flows), arrangement)
     h = jnp.asarray(h, state.M.dtype)
@@ -305,11 +315,11 @@ def splitting_run(
     vmappable, differentiable by plain reverse mode (``checkpoint``: see :func:`advance`); the
     working dtype is that of (x0.g, x0.xi, h)."""
     n_steps, save_every = val.check_steps(n_steps, save_every)
-    method, arrangement = resolve(order, method, arrangement)
+    method, arrangement = resolve(order, method, arrangement, isinstance(system.group, SO3))
     dtype = jnp.result_type(x0.g, x0.xi, h)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
     cast = lambda x: None if x is None else jnp.asarray(x, dtype)  # noqa: E731
     x0 = State(cast(x0.g), cast(x0.xi), cast(x0.q), cast(x0.qdot))
-    parts = separable_parts(system, dtype)
+    parts = separable_parts(system, dtype, sphere="S" in arrangement)
     return _run(parts, x0, jnp.asarray(h, dtype), n_steps // save_every, save_every, method, arrangement, bool(checkpoint))
