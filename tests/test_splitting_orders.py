@@ -81,17 +81,21 @@ def test_pieces_generate_the_continuous_vector_field(name, sphere):
 
 # --- the rotations: small-angle polynomials and the SO(3) form -----------------------------------
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_small_angle_cos_sin(dtype):
-    """The Taylor polynomials the loop-option plan uses for |θ| ≤ 1 equal cos and sin: their
-    remainders are below 1/20! ≈ 4e-19 (values) and 1/19! ≈ 8e-18 (derivatives), so only the
-    rounding of ten terms ≤ 1 differs (a few ulp)."""
-    theta = np.linspace(-1.0, 1.0, 2001).astype(dtype)
-    (c, s), (dc, ds) = jax.jit(lambda t: jax.jvp(sp._cos_sin_small, (t,), (jnp.ones_like(t),)))(jnp.asarray(theta))
-    assert c.dtype == s.dtype == dtype
+def test_rotation_increments(dtype):
+    """cos θ − 1 and sin θ of both plans: the loop option's Taylor polynomials for |θ| ≤ 1
+    (remainders below 1/20! ≈ 4e-19 for values, 1/19! ≈ 8e-18 for derivatives) and the default
+    plan's half-angle trig, against float64 references, values and derivatives. cos θ − 1 must
+    hold to a few ulp *of itself* (relative), not of 1: a rotation by the same angle at every step
+    would otherwise rescale g by the same rounding every time and drift off SO(3)."""
+    theta = np.concatenate([np.linspace(-1.0, 1.0, 2001), [1e-4, -3e-6]]).astype(dtype)
     exact = theta.astype(np.float64)
-    bound = 4 * np.finfo(dtype).eps
-    for got, want in ((c, np.cos(exact)), (s, np.sin(exact)), (dc, -np.sin(exact)), (ds, np.cos(exact))):
-        assert np.max(np.abs(np.asarray(got, np.float64) - want)) <= bound
+    cm1_exact = -2 * np.sin(exact / 2) ** 2
+    eps = np.finfo(dtype).eps
+    for fn in (sp._cos_minus_one_sin_small, sp._cos_minus_one_sin_trig):
+        (cm1, s), (dcm1, ds) = jax.jit(lambda t, fn=fn: jax.jvp(fn, (t,), (jnp.ones_like(t),)))(jnp.asarray(theta))
+        assert cm1.dtype == s.dtype == dtype
+        for got, want in ((cm1, cm1_exact), (s, np.sin(exact)), (dcm1, -np.sin(exact)), (ds, np.cos(exact))):
+            assert np.all(np.abs(np.asarray(got, np.float64) - want) <= 4 * eps * np.abs(want) + 1e-300), fn.__name__
 
 
 def _random_phase(parts, seed):

@@ -279,22 +279,28 @@ def translate(parts, t, s: Phase) -> Phase:
     return Phase(s.g, s.q + t * matvec(s.g, nu), Pi, s.P)
 
 
-def _planar(c, sn, pairs, size):
-    """The matrix A with (Av)_a = c v_a + σ sn v_b, (Av)_b = c v_b − σ sn v_a for each (a, b, σ) of
-    ``pairs`` (identity elsewhere): a rotation of those coordinate planes. Built from constant
-    masks and applied as a small product, which XLA:CPU fuses (indexing the turned entries
-    instead measured 2–4× slower per step)."""
+def _planar_increment(cm1, sn, pairs, size):
+    """A − 1 for the matrix A with (Av)_a = c v_a + σ sn v_b, (Av)_b = c v_b − σ sn v_a for each
+    (a, b, σ) of ``pairs`` (identity elsewhere), c = 1 + ``cm1``: a rotation of those coordinate
+    planes, applied as v + (A − 1)v. Built from constant masks and applied as a small product,
+    which XLA:CPU fuses (indexing the turned entries instead measured 2–4× slower per step)."""
     diag, skew = np.zeros((size, size)), np.zeros((size, size))
     for a, b, sigma in pairs:
         diag[a, a] = diag[b, b] = 1.0
         skew[a, b], skew[b, a] = sigma, -sigma
-    return jnp.eye(size, dtype=c.dtype) + (c - 1) * diag.astype(c.dtype) + sn * skew.astype(c.dtype)
+    return cm1 * diag.astype(cm1.dtype) + sn * skew.astype(cm1.dtype)
 
 
-# cos θ = 1 − u·C(u) and sin θ = θ + θu·S(u), u = θ², with the Taylor polynomials C and S of 9
-# terms (remainders for |θ| ≤ 1 below 1/20! ≈ 4e-19) evaluated by Estrin's scheme. The leading
-# 1 and θ are added last, so each value is rounded about as a correctly rounded cos/sin is: an
-# unbiased error (c² + s² − 1 then does not drift over millions of rotations).
+# Rotations are applied as increments, v ← v + ((c − 1)v + s w), with c − 1 computed to full
+# relative precision (never as cos θ rounded to a number near 1, then minus 1). A scene can turn
+# by the same angle step after step (the symmetric top: Π₃ and |Π| are constant), and then the
+# rounding of c, the same at every step, would scale g by the same 1 + O(ε) every time: a drift
+# off SO(3) (4e-10 after 10⁶ heavy-top steps, against a random walk's 6e-12). In increments the
+# scale error is O(θ²ε) and the roundings of v + … vary with v: a random walk.
+#
+# 1 − cos θ = u·C(u) and sin θ = θ + θu·S(u), u = θ², with the Taylor polynomials C and S of 9
+# terms (remainders for |θ| ≤ 1 below 1/20! ≈ 4e-19) evaluated by Estrin's scheme; θ is added
+# last, so sin θ is rounded about as a correctly rounded sin is.
 _COS_TAIL = tuple((-1) ** k / math.factorial(2 * k + 2) for k in range(9))
 _SIN_TAIL = tuple((-1) ** (k + 1) / math.factorial(2 * k + 3) for k in range(9))
 
@@ -307,58 +313,66 @@ def _estrin(a, u):
     return (q[0] + q[1] * u2) + (q[2] + q[3] * u2) * u4 + a[8] * (u4 * u4)
 
 
-def _cos_sin_small(theta):
+def _cos_minus_one_sin_small(theta):
     u = theta * theta
-    return 1 - u * _estrin(_COS_TAIL, u), theta + (theta * u) * _estrin(_SIN_TAIL, u)
+    return -(u * _estrin(_COS_TAIL, u)), theta + (theta * u) * _estrin(_SIN_TAIL, u)
 
 
-def _cos_sin(theta, loop_option):
-    """cos θ and sin θ. The stages of a splitting are one chain of dependent rotations, so under
-    XLA:CPU's loop option (one kernel per loop) a step costs the latency of its sines and cosines:
-    there |θ| ≤ 1 (every rotation of a resolved run) takes the polynomials above behind a
-    ``lax.cond`` (same values to round-off). Without the option each conditional is a dispatch of
-    its own and costs more than it saves, so ``jnp.cos``/``jnp.sin`` run."""
-    exact = lambda t: (jnp.cos(t), jnp.sin(t))  # noqa: E731
+def _cos_minus_one_sin_trig(theta):
+    """cos θ − 1 = −2 sin²(θ/2) and sin θ = 2 sin(θ/2) cos(θ/2), each to full relative precision."""
+    half_sin, half_cos = jnp.sin(0.5 * theta), jnp.cos(0.5 * theta)
+    return -2 * half_sin * half_sin, 2 * half_sin * half_cos
+
+
+def _cos_minus_one_sin(theta, loop_option):
+    """cos θ − 1 and sin θ. The stages of a splitting are one chain of dependent rotations, so
+    under XLA:CPU's loop option (one kernel per loop) a step costs the latency of its sines and
+    cosines: there |θ| ≤ 1 (every rotation of a resolved run) takes the polynomials above behind
+    a ``lax.cond`` (same values to round-off). Without the option each conditional is a dispatch
+    of its own and costs more than it saves, so the half-angle trig runs."""
     if not loop_option:
-        return exact(theta)
-    return jax.lax.cond(jnp.abs(theta) <= 1, _cos_sin_small, exact, theta)
+        return _cos_minus_one_sin_trig(theta)
+    return jax.lax.cond(jnp.abs(theta) <= 1, _cos_minus_one_sin_small, _cos_minus_one_sin_trig, theta)
 
 
-def _turn_columns(x, i, j, c, s):
-    """x with columns i, j replaced by c x_i + s x_j and c x_j − s x_i (x E for the planar E)."""
+def _turn_columns(x, i, j, cm1, s):
+    """x with columns i, j replaced by x_i + ((c − 1)x_i + s x_j) and x_j + ((c − 1)x_j − s x_i)
+    (x E for the planar E)."""
     xi, xj = x[:, i], x[:, j]
-    new = {i: c * xi + s * xj, j: c * xj - s * xi}
+    new = {i: xi + (cm1 * xi + s * xj), j: xj + (cm1 * xj - s * xi)}
     return jnp.stack([new.get(m, x[:, m]) for m in range(x.shape[1])], axis=1)
 
 
 def rotate(parts, k, t, s: Phase) -> Phase:
-    """Flow of H = Π_k²/(2I_k) (with the sphere piece: Π_k²(1/I_k − 1/I_1)/2): a planar rotation E = exp(tω ê_k), ω = Π_k/I_k, of g' (g' ← g'E),
-    Π' (← Ad*_EΠ') and P' (← EᵀP'). In the plane (i, j) of ê_k, Ee_i = c e_i + s e_j and
-    Ee_j = c e_j − s e_i. On SO(3), Ad*_EΠ = EᵀΠ: the rows of g', Π'ᵀ and P'ᵀ are turned
-    together: by one small product with XLA's default flags (1.2–1.5× faster per step than a
-    product each), column by column under the loop option (1.3–1.5× faster there than the
-    product, 1.4–4× slower than it without the option): ``python
-    benchmarks/splitting_rotation.py [--fast-loops]``."""
+    """Flow of H = Π_k²/(2I_k) (with the sphere piece: Π_k²(1/I_k − 1/I_1)/2): a planar
+    rotation E = exp(tω ê_k), ω = Π_k/I_k, of g' (g' ← g'E), Π' (← Ad*_EΠ') and P' (← EᵀP').
+    In the plane (i, j) of ê_k, Ee_i = c e_i + s e_j and Ee_j = c e_j − s e_i. On SO(3),
+    Ad*_EΠ = EᵀΠ: the rows of g', Π'ᵀ and P'ᵀ are turned together: by one small product with
+    XLA's default flags (1.4–1.9× faster per step than a product each), column by column under
+    the loop option (1.3–1.5× faster there than the product, 1.2–1.6× slower than it without the
+    option): ``python benchmarks/splitting_rotation.py [--fast-loops]``."""
     loop_option = loop_option_requested()
     rate = parts.inv_inertia[k] - parts.inv_inertia[1] if parts.sphere else parts.inv_inertia[k]
-    c, sn = _cos_sin(t * (s.Pi[k] * rate), loop_option)
+    cm1, sn = _cos_minus_one_sin(t * (s.Pi[k] * rate), loop_option)
     i, j = parts.planes[k]
     if parts.frame is not None:
         rows = jnp.concatenate([s.g, s.Pi[None]] + ([] if s.P is None else [s.P[None]]))
         if loop_option:
-            rows = _turn_columns(rows, i, j, c, sn)
+            rows = _turn_columns(rows, i, j, cm1, sn)
         else:
-            rows = matmul(rows, _planar(c, sn, ((i, j, 1.0),), 3).T)
+            rows = rows + matmul(rows, _planar_increment(cm1, sn, ((i, j, 1.0),), 3).T)
         return Phase(rows[:3], s.q, rows[3], None if s.P is None else rows[4])
-    Et = _planar(c, sn, ((i, j, 1.0),), s.g.shape[-1])
-    P = None if s.P is None else matvec(Et, s.P)
-    return Phase(matmul(s.g, Et.T), s.q, matvec(_planar(c, sn, parts.pairs[k], s.Pi.shape[-1]), s.Pi), P)
+    Dt = _planar_increment(cm1, sn, ((i, j, 1.0),), s.g.shape[-1])
+    P = None if s.P is None else s.P + matvec(Dt, s.P)
+    Pi = s.Pi + matvec(_planar_increment(cm1, sn, parts.pairs[k], s.Pi.shape[-1]), s.Pi)
+    return Phase(s.g + matmul(s.g, Dt.T), s.q, Pi, P)
 
 
 def _sphere_coefficients(u, loop_option):
-    """(sin θ/θ, (1 − cos θ)/θ²) from u = θ²: the polynomials of ``_cos_sin_small`` for u ≤ 1
-    (no square root, no trig; behind a ``lax.cond`` under the loop option, as in
-    :func:`_cos_sin`), else from θ = √u (safe for both values and derivatives at u = 0)."""
+    """(sin θ/θ, (1 − cos θ)/θ²) from u = θ²: the polynomials of ``_cos_minus_one_sin_small``
+    for u ≤ 1 (no square root, no trig; behind a ``lax.cond`` under the loop option, as in
+    :func:`_cos_minus_one_sin`), else from θ = √u (safe for both values and derivatives at
+    u = 0)."""
     small = lambda u: (1 + u * _estrin(_SIN_TAIL, u), _estrin(_COS_TAIL, u))  # noqa: E731
 
     def large(u):
@@ -385,9 +399,9 @@ def sphere(parts, t, s: Phase) -> Phase:
     if loop_option:  # rE = r + A r×φ + B (r×φ)×φ
         r_phi = jnp.cross(rows, phi)
         rows = rows + A * r_phi + B * jnp.cross(r_phi, phi)
-    else:  # E = cos θ·1 + Bφφᵀ + Aφ̂ (φ̂² = φφᵀ − θ²·1), entry by entry
-        E = (1 - B * u) * jnp.eye(3, dtype=phi.dtype) + B * phi[:, None] * phi[None, :] + A * SO3().hat(phi)
-        rows = matmul(rows, E)
+    else:  # E − 1 = Bφφᵀ − Bθ²·1 + Aφ̂ (φ̂² = φφᵀ − θ²·1), entry by entry; rows + rows(E − 1)
+        D = B * phi[:, None] * phi[None, :] - (B * u) * jnp.eye(3, dtype=phi.dtype) + A * SO3().hat(phi)
+        rows = rows + matmul(rows, D)
     return Phase(rows[:3], s.q, s.Pi, None if s.P is None else rows[3])
 
 

@@ -83,11 +83,11 @@ _SPLITTINGS = tuple(("splitting", order) for order in (2, 4, 6, 8))
 _ALL_SCHEMES = tuple((tau, order) for tau in ("cayley", "exp") for order in (1, 2, 4, 6)) + _SPLITTINGS
 # Splitting step counts: h from the composition study's errors (benchmarks/splitting_compositions.py)
 # spanning 1e-3 … 1e-10 at T = 50 (the heavy top spins ~6× faster than the vehicle turns).
-SPLITTING_STEPS = {
-    "vehicle": {("splitting", 2): (400, 1600, 6400), ("splitting", 4): (50, 200, 800, 3200),
-                ("splitting", 6): (50, 100, 200, 400, 800), ("splitting", 8): (50, 100, 200, 400)},
-    "heavy_top": {("splitting", 2): (2000, 8000, 32000), ("splitting", 4): (400, 1600, 6400, 25600),
-                  ("splitting", 6): (200, 400, 800, 1600, 3200), ("splitting", 8): (200, 400, 800, 1600, 3200)},
+SPLITTING_STEPS = {  # final-state errors from ~1e-2 down to ~1e-12 per order
+    "vehicle": {("splitting", 2): (400, 1600, 6400), ("splitting", 4): (25, 50, 200, 800, 3200),
+                ("splitting", 6): (25, 50, 100, 200, 400, 800), ("splitting", 8): (50, 100, 200, 400)},
+    "heavy_top": {("splitting", 2): (2000, 8000, 32000), ("splitting", 4): (100, 400, 1600, 6400),
+                  ("splitting", 6): (100, 200, 400, 800, 1600), ("splitting", 8): (100, 200, 400, 800, 1600)},
 }
 # Long horizon (T = 2·10⁴ s): order 8 at h = 0.5 and 0.25, order 6 at 0.25, order 4 at 0.125.
 LONG_SPLITTINGS = (("splitting", 8, 40_000), ("splitting", 8, 80_000), ("splitting", 6, 80_000), ("splitting", 4, 160_000))
