@@ -126,9 +126,9 @@ METHODS = {
 # with and without the XLA:CPU loop option; within an order the methods differ by up to 3×).
 # Arrangements (benchmarks/splitting_sphere_piece.py [--fast-loops]): with the sphere piece the
 # error at equal step is 66–20,000× smaller on the symmetric heavy top at orders 4–8 (its free
-# motion is then exact) and 1–3.6× smaller on the vehicle, for up to 17 % more per step with
-# the loop option (18–32 % without). Time to equal error, sphere ÷ planar: heavy top 0.17–0.79
-# (loop option) and 0.19–0.93 (default flags); vehicle 0.85–1.12 and 0.93–1.24. Each order
+# motion is then exact) and 1–3.6× smaller on the vehicle, for 2–21 % more per step with the
+# loop option (20–38 % without). Time to equal error, sphere ÷ planar: heavy top 0.17–0.77
+# (loop option) and 0.20–0.97 (default flags); vehicle 0.89–1.14 and 0.95–1.32. Each order
 # takes the sphere arrangement with the smallest vehicle error.
 DEFAULTS = {
     2: ("strang", ("V", "S", "R", "T")),
