@@ -57,6 +57,40 @@ def test_constant_zeros_are_folded_away():
     np.testing.assert_array_equal(values[:, 0], [0, 1, 0, 1, 1, 0, 0, 0, 2])
 
 
+def test_shared_values_pass_the_boundary_once():
+    """A value marked ``shared`` reaches the caller's boundary once per component, its forward-
+    mode tangents do not (a Jacobian reads each column once), the values are those of the
+    unmarked function, and outside the generated step the mark is not traced at all."""
+    from vi_jax._shared_values import shared
+
+    def value_and_jacobian(x, A):
+        def f(x):
+            y = shared(jnp.sin(A @ x))  # read by every output component
+            return y * y[0] + x
+
+        return f(x), jax.jacfwd(f)(x)
+
+    rng = np.random.default_rng(1)
+    x, A = rng.normal(size=(N_MEMBERS, 3)), rng.normal(size=(3, 3))
+    seen = []
+
+    def boundary(values):
+        seen.append(len(values))
+        return [v + 0.0 for v in values]
+
+    fn = componentwise(value_and_jacobian, N_MEMBERS)
+    args = (components(x, True), components(A, False))
+    marked, unmarked = fn(*args, boundary=boundary), fn(*args)
+    assert seen == [3, 3]  # y's three components, in f(x) and in jacfwd's primal; no tangent
+    expected = jax.vmap(value_and_jacobian, in_axes=(0, None))(x, A)
+    for ours, plain, theirs in zip(marked, unmarked, expected):
+        np.testing.assert_allclose(stacked(ours, N_MEMBERS), theirs, rtol=0, atol=64 * EPS * float(np.max(np.abs(theirs))))
+        np.testing.assert_array_equal(stacked(ours, N_MEMBERS), stacked(plain, N_MEMBERS))
+    system, x0, tau, order, h = _scene("heavy top, Cayley, order 2")
+    jaxpr = str(jax.make_jaxpr(lambda x0: vj.simulate(system, x0, h, 3, tau=tau, order=order, throw=False).g)(x0))
+    assert "optimization_barrier" not in jaxpr
+
+
 def _user_system():
     """The README's ``vj.System``: SO(3), advected parameter and additional dynamics, a ξ–ν cross
     term (not separable, not a model class)."""

@@ -14,6 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._shared_values import shared
 from ..solvers import SINGULAR_DIFFERENCE_MAP, newton_root
 from ._quadrature import discrete_lagrangian
 
@@ -58,6 +59,7 @@ def discrete_momenta(system, tau, rule, h, z, n, a):
         lambda *args: discrete_lagrangian(system, tau, rule, h, *args), argnums=(0, 1, 2, 3)
     )(xi, n, nu, a)
     l_xi, l_n, l_nu, l_a = grads
+    l_xi = shared(l_xi)  # read by every component of both momenta
     m_tau = tau.dtau_inv_dual(G, h * xi, l_xi)
     m_minus = m_tau
     size_m = jnp.abs(m_tau)

@@ -11,6 +11,10 @@ reshapes, slices and concatenations become sums of products of components or mer
 rearrangements of the object arrays, and products with the constant zeros and ones of forward-
 mode bases and structure matrices are folded away at trace time.
 
+Values marked with :func:`vi_jax._shared_values.shared` (read in several places) pass through
+the caller's ``boundary``: each of their components is then computed once, not copied by XLA
+into every fused loop that reads it.
+
 Primitives without a componentwise rule run as they are under ``jax.vmap`` on the stacked
 components (correct, slower); tests/test_generated_step.py checks the rules against the plain
 evaluation.
@@ -22,6 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.extend import core as jcore
+
+from .._shared_values import marking_shared_values
 
 _ELEMENTWISE = frozenset(
     """abs acos acosh add add_any and asin asinh atan atan2 atanh cbrt ceil clamp convert_element_type
@@ -296,7 +302,18 @@ def _live(jaxpr):
     return live[::-1]
 
 
-def _eval(jaxpr, consts, args, n_members):
+def _through_boundary(ins, boundary):
+    """The operands of a shared value's barrier, their member arrays through ``boundary``."""
+    slots = [(k, idx) for k, x in enumerate(ins) for idx in np.ndindex(x.shape) if isinstance(x[idx], jax.Array) and jnp.ndim(x[idx]) == 1]
+    if boundary is None or not slots:
+        return ins
+    outs = [x.copy() for x in ins]
+    for (k, idx), v in zip(slots, boundary([ins[k][idx] for k, idx in slots])):
+        outs[k][idx] = v
+    return outs
+
+
+def _eval(jaxpr, consts, args, n_members, boundary):
     env = {}
 
     def read(v):
@@ -313,10 +330,12 @@ def _eval(jaxpr, consts, args, n_members):
         name = eqn.primitive.name
         if name in _ELEMENTWISE:
             outs = [_elementwise(eqn, ins)]
+        elif name == "optimization_barrier":
+            outs = _through_boundary(ins, boundary)
         elif name in _CALLS and eqn.params.get(_CALLS[name]) is not None:
             closed = eqn.params[_CALLS[name]]
             inner, inner_consts = (closed.jaxpr, [_constants(c) for c in closed.consts]) if hasattr(closed, "consts") else (closed, [])
-            outs = _eval(inner, inner_consts, ins[: len(inner.invars)], n_members)
+            outs = _eval(inner, inner_consts, ins[: len(inner.invars)], n_members, boundary)
         else:
             outs = _structural(eqn, ins)
             if outs is None:
@@ -330,18 +349,21 @@ def _eval(jaxpr, consts, args, n_members):
 def componentwise(fn, n_members):
     """``fn`` taking and returning components: every array leaf of its arguments is an object
     array of the leaf's per-member shape whose entries are member arrays (shape (members,) or
-    ()) or constants. ``fn`` is traced once per argument layout (shapes and dtypes)."""
+    ()) or constants. ``fn`` is traced once per argument layout (shapes and dtypes).
+    ``boundary`` (a list of member arrays ↦ the same values, marked): where the values ``fn``
+    marks as shared go; None: nowhere."""
     cache = {}
 
-    def wrapped(*args):
+    def wrapped(*args, boundary=None):
         leaves, tree = jax.tree.flatten(args)
         specs = tuple(jax.ShapeDtypeStruct(np.shape(x), _leaf_dtype(x)) for x in leaves)
         key = (tree, specs)
         if key not in cache:
-            closed, out_shape = jax.make_jaxpr(lambda *xs: fn(*jax.tree.unflatten(tree, xs)), return_shape=True)(*specs)
+            with marking_shared_values():
+                closed, out_shape = jax.make_jaxpr(lambda *xs: fn(*jax.tree.unflatten(tree, xs)), return_shape=True)(*specs)
             cache[key] = closed, [_constants(c) for c in closed.consts], jax.tree.structure(out_shape)
         closed, consts, out_tree = cache[key]
-        return jax.tree.unflatten(out_tree, _eval(closed.jaxpr, consts, leaves, n_members))
+        return jax.tree.unflatten(out_tree, _eval(closed.jaxpr, consts, leaves, n_members, boundary))
 
     return wrapped
 

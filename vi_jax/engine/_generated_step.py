@@ -88,8 +88,9 @@ def _boundary(tree, always):
 
 def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True):
     """``step(carry, h) -> (carry, (iterations, residual, result))`` on flat member arrays;
-    ``boundaries``: the fusion boundaries of :func:`_boundary` (the CPU plan; a GPU fuses
-    without them and would pay a conditional per boundary)."""
+    ``boundaries``: the fusion boundaries of :func:`_boundary` at the Newton iterates, the
+    residuals and the values the step marks as shared (the CPU plan; a GPU fuses without them
+    and would pay a conditional per boundary)."""
     body, residual, value_and_jacobian, update = (componentwise(f, n_members) for f in _pieces(static, tau, rule))
 
     def step(carry, h):
@@ -104,17 +105,19 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
         boundary = (lambda tree: _boundary(tree, always)) if boundaries else (lambda tree: tree)
 
         fn, fn_jac = on_member_tuples(
-            lambda z: residual(params, hc, z, n, a, target), lambda z: value_and_jacobian(params, hc, z, n, a, target),
+            lambda z: residual(params, hc, z, n, a, target, boundary=boundary),
+            lambda z: value_and_jacobian(params, hc, z, n, a, target, boundary=boundary),
             shape, n_members, dtype, boundary,
         )
         zt, (iterations, rel, result) = newton_members(
             fn, carry[4], rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac
         )
         z = from_member_arrays(zt, shape)
-        g, q, M, P, regular = update(params, hc, z, g, q, n, a)
+        g, q, M, P, regular = update(params, hc, z, g, q, n, a, boundary=boundary)
         result = jnp.where(regular[()], result, jnp.int8(SINGULAR_DIFFERENCE_MAP))
         new = layout.flat((g, q, M, P, z), n_members, dtype)
-        return _nan_where(result != SUCCESS, new), (iterations, rel, result)
+        (failed,) = boundary([result != SUCCESS])  # read by every component of the state
+        return _nan_where(failed, new), (iterations, rel, result)
 
     return step
 
