@@ -10,7 +10,7 @@ tests/test_generated_step.py):
   *component arrays* of shape (members,), so every operation of a step is an elementwise loop
   over the members and XLA fuses a whole Newton iteration into one vectorised loop. For the
   :class:`~vi_jax.models.UnderwaterVehicle` at ``order=1`` a hand-written kernel of the
-  paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still 2.5× faster, and is used there. The plan
+  paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still 1.5–2× faster, and is used there. The plan
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
   ``CHUNK`` one after another (cache-sized); on a GPU the whole batch is in every kernel (H100,
   vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
