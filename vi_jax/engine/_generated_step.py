@@ -76,8 +76,10 @@ def _boundary(tree, always):
     conditional whose other branch (NaN) is never taken: XLA:CPU copies cheap subexpressions into
     every loop fusion that uses them (a Newton iterate into each component of the next residual)
     and drops optimisation barriers before fusing, but keeps conditionals. Marking the iterates
-    and residuals so makes the vehicle's step 2.8× faster (order 1, 64 members per chunk) and
-    compile in 11 s instead of 25 (order 2; ``python benchmarks/ensemble_chunks.py``)."""
+    and residuals so made the vehicle's step 2.8× faster (order 1, 64 members per chunk) and
+    compile in 11 s instead of 25 (order 2; ``python benchmarks/ensemble_chunks.py``); since the
+    momentum is marked shared the iterates need no mark (12 fewer thunks per step on SO(3),
+    ``python benchmarks/generated_step_hlo.py``)."""
     leaves, treedef = jax.tree.flatten(tree)
     slots = [i for i, x in enumerate(leaves) if isinstance(x, jax.Array) and jnp.ndim(x) == 1]
     kept = jax.lax.cond(always, lambda xs: xs, lambda xs: [jnp.full_like(x, jnp.nan) for x in xs], [leaves[i] for i in slots])
@@ -88,8 +90,8 @@ def _boundary(tree, always):
 
 def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True):
     """``step(carry, h) -> (carry, (iterations, residual, result))`` on flat member arrays;
-    ``boundaries``: the fusion boundaries of :func:`_boundary` at the Newton iterates, the
-    residuals and the values the step marks as shared (the CPU plan; a GPU fuses without them
+    ``boundaries``: the fusion boundaries of :func:`_boundary` at the residuals, the Jacobian
+    and the values the step marks as shared (the CPU plan; a GPU fuses without them
     and would pay a conditional per boundary)."""
     body, residual, value_and_jacobian, update = (componentwise(f, n_members) for f in _pieces(static, tau, rule))
 

@@ -83,13 +83,14 @@ def value_and_jacobian_of(residual, argnum):
 def on_member_tuples(residual, value_and_jacobian, shape, n_members, dtype, boundary=lambda tree: tree):
     """:func:`newton_members`'s ``fn`` and ``value_and_jacobian`` from functions of the unknowns
     as components (an object array of ``shape``). Jacobian entries that are constants or shared
-    by all members stay so: the LU folds them. ``boundary`` marks the iterates and residuals."""
+    by all members stay so: the LU folds them. ``boundary`` marks the residuals and Jacobians
+    (the iterates need none: what reads them several times, the momentum, is marked shared)."""
 
     def values(r, scale):
         return member_arrays(r, n_members, dtype), jnp.broadcast_to(scale[()], (n_members,))
 
     def fn(zt):
-        return boundary(values(*residual(from_member_arrays(boundary(zt), shape))))
+        return boundary(values(*residual(from_member_arrays(zt, shape))))
 
     def fn_jac(zt):
         r, scale, jac = value_and_jacobian(from_member_arrays(zt, shape))
