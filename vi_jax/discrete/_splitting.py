@@ -164,6 +164,13 @@ def resolve(order, method=None, arrangement=None, sphere=True):
     return method or DEFAULTS[order][0], tuple(arrangement)
 
 
+def resolved_parts(system, dtype, order, method=None, arrangement=None, *, throw=True):
+    """(method, arrangement, ``separable_parts``) of a run: the sphere piece by default on SO(3),
+    the parts' frame prepared for it when the arrangement has it."""
+    method, arrangement = resolve(order, method, arrangement, isinstance(system.group, SO3))
+    return method, arrangement, separable_parts(system, dtype, throw=throw, sphere="S" in arrangement)
+
+
 # --- states --------------------------------------------------------------------------------------
 class SplittingState(eqx.Module):
     """(g, q, Π, P) at a node: the variables of the DEP engine's ``StepState`` (M = Π), continuous
@@ -315,11 +322,10 @@ def splitting_run(
     vmappable, differentiable by plain reverse mode (``checkpoint``: see :func:`advance`); the
     working dtype is that of (x0.g, x0.xi, h)."""
     n_steps, save_every = val.check_steps(n_steps, save_every)
-    method, arrangement = resolve(order, method, arrangement, isinstance(system.group, SO3))
     dtype = jnp.result_type(x0.g, x0.xi, h)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
     cast = lambda x: None if x is None else jnp.asarray(x, dtype)  # noqa: E731
     x0 = State(cast(x0.g), cast(x0.xi), cast(x0.q), cast(x0.qdot))
-    parts = separable_parts(system, dtype, sphere="S" in arrangement)
+    method, arrangement, parts = resolved_parts(system, dtype, order, method, arrangement)
     return _run(parts, x0, jnp.asarray(h, dtype), n_steps // save_every, save_every, method, arrangement, bool(checkpoint))

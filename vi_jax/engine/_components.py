@@ -304,8 +304,10 @@ def _live(jaxpr):
 
 def _through_boundary(ins, boundary):
     """The operands of a shared value's barrier, their member arrays through ``boundary``."""
+    if boundary is None:
+        return ins
     slots = [(k, idx) for k, x in enumerate(ins) for idx in np.ndindex(x.shape) if isinstance(x[idx], jax.Array) and jnp.ndim(x[idx]) == 1]
-    if boundary is None or not slots:
+    if not slots:
         return ins
     outs = [x.copy() for x in ins]
     for (k, idx), v in zip(slots, boundary([ins[k][idx] for k, idx in slots])):

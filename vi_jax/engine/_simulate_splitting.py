@@ -7,8 +7,7 @@ import jax.numpy as jnp
 
 from .._system import State
 from .._saved_nodes import first_rows, saved_capacity
-from ..lie import SO3
-from ..discrete._splitting import advance, advance_loop, initial_phase, nodes, resolve, separable_parts
+from ..discrete._splitting import advance, advance_loop, initial_phase, nodes, resolved_parts
 from ..solvers import NOT_SEPARABLE, SUCCESS
 from ._solution import Solution, node_invariants
 
@@ -95,8 +94,7 @@ def simulate_splitting(
 ):
     """The splitting run of ``order`` as a :class:`Solution` (inputs validated by the caller).
     ``looped`` (concrete inputs): traced step counts, one program per saved-node capacity."""
-    method, arrangement = resolve(order, method, arrangement, isinstance(system.group, SO3))
-    parts = separable_parts(system, dtype, throw=throw, sphere="S" in arrangement)
+    method, arrangement, parts = resolved_parts(system, dtype, order, method, arrangement, throw=throw)
     if progress:
         return _with_progress(parts, x0, h, n_saved, save_every, method, arrangement)
     if looped:
