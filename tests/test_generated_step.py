@@ -146,7 +146,7 @@ def test_generated_step_equals_simulate_member_by_member(name):
 
 def test_generated_step_has_no_small_dense_algebra():
     """The generated step of an order-2 heavy top contains no ``dot_general``: every product
-    is elementwise over the members."""
+    is elementwise over the members (with Newton's factors carried from step to step or not)."""
     from vi_jax.discrete import composition_coefficients
     from vi_jax.engine._generated_step import _start, make_step
     from vi_jax.lie import difference_map
@@ -158,8 +158,8 @@ def test_generated_step_has_no_small_dense_algebra():
 
     params, static, _, layout, carry = _start(system, states, axes, jnp.float64, N_MEMBERS)
 
-    def primitives(max_iterations):
-        step = make_step(static, params, difference_map(tau), rule, 1e-14, max_iterations, N_MEMBERS, layout)
+    def primitives(max_iterations, carry_factors):
+        step = make_step(static, params, difference_map(tau), rule, 1e-14, max_iterations, N_MEMBERS, layout, True, carry_factors)
         names = set()
 
         def visit(jaxpr):
@@ -168,14 +168,15 @@ def test_generated_step_has_no_small_dense_algebra():
                 for sub in jax.extend.core.jaxprs_in_params(eqn.params):
                     visit(sub)
 
-        visit(jax.make_jaxpr(step)(carry, jnp.asarray(h)).jaxpr)
+        visit(jax.make_jaxpr(step)((carry, step.start(carry)), jnp.asarray(h)).jaxpr)
         return names
 
-    names = primitives(20)
-    assert "mul" in names and "dot_general" not in names and "while" in names
-    # At most one Newton and two chord steps: the fallback iterations could never run, and
-    # none is compiled (as in vj.simulate's Newton).
-    assert "while" not in primitives(3)
+    for carry_factors in (False, True):
+        names = primitives(20, carry_factors)
+        assert "mul" in names and "dot_general" not in names and "while" in names
+        # At most one Newton and two chord steps: the fallback iterations could never run, and
+        # none is compiled (as in vj.simulate's Newton).
+        assert "while" not in primitives(3, carry_factors)
 
 
 def test_generated_step_gradients_equal_the_vmap_path():

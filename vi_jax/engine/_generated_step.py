@@ -24,7 +24,7 @@ from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
 from ._member_loops import loop_member_nodes, scan_member_nodes
-from ._member_newton import newton_members, on_member_tuples, value_and_jacobian_of
+from ._member_newton import lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
 
 
 def _pieces(static, tau, rule):
@@ -53,6 +53,13 @@ def _pieces(static, tau, rule):
 
 
 FIELDS = ("g", "q", "M", "P", "z")
+# Newton's factors carried from step to step (make_step): None carries them where the residual
+# with its Jacobian costs at least CARRY_COST residuals (jacobian_cost), True / False everywhere /
+# nowhere (the benchmark's switch). python benchmarks/carried_factors.py [--fast-loops]: 1.8x
+# faster on the vehicle at order 2 (cost 5.1), 1.08-1.11x on the heavy top at order 2 (3.4),
+# 0.79-1.09x on the other scenes (2.1-2.2), whose Jacobian costs less than carrying its factors.
+CARRY_FACTORS = None
+CARRY_COST = 3
 
 
 class _Layout(eqx.Module):
@@ -88,39 +95,84 @@ def _boundary(tree, always):
     return jax.tree.unflatten(treedef, leaves)
 
 
-def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True):
-    """``step(carry, h) -> (carry, (iterations, residual, result))`` on flat member arrays;
-    ``boundaries``: the fusion boundaries of :func:`_boundary` at the residuals, the Jacobian
-    and the values the step marks as shared (the CPU plan; a GPU fuses without them
-    and would pay a conditional per boundary)."""
+def _equations_of(static, params, tau, rule, n_members, layout, boundaries):
+    """``equations(carry, h)``: the step's configuration pieces, its boundary, and its residual
+    and Jacobian as functions of the unknowns' member arrays; and the update."""
     body, residual, value_and_jacobian, update = (componentwise(f, n_members) for f in _pieces(static, tau, rule))
 
-    def step(carry, h):
+    def equations(carry, h):
         dtype = carry[2][0].dtype
         g, q, M, P, z = layout.unflat(carry)
         hc = components(h, False)
         n, a = body(params, g, q)
         target = M if P is None else np.concatenate([M, P])
-        shape = z.shape
-
         always = h == h  # True unless h is NaN (and then every value is)
         boundary = (lambda tree: _boundary(tree, always)) if boundaries else (lambda tree: tree)
-
         fn, fn_jac = on_member_tuples(
             lambda z: residual(params, hc, z, n, a, target, boundary=boundary),
             lambda z: value_and_jacobian(params, hc, z, n, a, target, boundary=boundary),
-            shape, n_members, dtype, boundary,
+            z.shape, n_members, dtype, boundary,
         )
-        zt, (iterations, rel, result) = newton_members(
-            fn, carry[4], rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac
-        )
-        z = from_member_arrays(zt, shape)
+        return (g, q, z, n, a, hc), boundary, fn, fn_jac
+
+    return equations, update
+
+
+def _member_operations(jaxpr, n_members):
+    """Equations of a jaxpr (and of the jaxprs in its equations) with a member array as output."""
+    count = 0
+    for eqn in jaxpr.eqns:
+        count += sum(_member_operations(sub, n_members) for sub in jax.extend.core.jaxprs_in_params(eqn.params))
+        count += any(getattr(v.aval, "shape", None) == (n_members,) for v in eqn.outvars)
+    return count
+
+
+def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
+    """The residual with its Jacobian, in residuals: operations per member in their jaxprs."""
+    equations, _ = _equations_of(static, params, tau, rule, n_members, layout, False)
+    _, _, fn, fn_jac = equations(carry, h)
+    size = lambda f: _member_operations(jax.make_jaxpr(f)(carry[4]).jaxpr, n_members)  # noqa: E731
+    return size(fn_jac) / size(fn)
+
+
+def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False):
+    """``step((carry, extra), h) -> ((carry, extra), (iterations, residual, result))`` on flat
+    member arrays; ``boundaries``: the fusion boundaries of :func:`_boundary` at the residuals,
+    the Jacobian and the values the step marks as shared (the CPU plan; a GPU fuses without
+    them and would pay a conditional per boundary). ``carry_factors``: ``extra`` holds each
+    member's LU factors, refresh period and the step count (:func:`next_periods`); else ``()``
+    and every step takes a fresh Jacobian. ``step.start(carry)`` is the first ``extra``."""
+    equations, update = _equations_of(static, params, tau, rule, n_members, layout, boundaries)
+
+    def start(carry):
+        """Factors of the identity with period 1: every member takes a Jacobian at step 0."""
+        if not carry_factors:
+            return ()
+        z = carry[4]
+        eye = [[jnp.ones_like(z[0]) if i == j else jnp.zeros_like(z[0]) for j in range(len(z))] for i in range(len(z))]
+        return lu(eye), jnp.ones((n_members,), jnp.int32), jnp.asarray(0, jnp.int32)
+
+    def step(state, h):
+        carry, extra = state
+        dtype = carry[2][0].dtype
+        (g, q, z, n, a, hc), boundary, fn, fn_jac = equations(carry, h)
+        options = dict(rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac)
+        if carry_factors:
+            factors, period, count = extra
+            zt, (iterations, rel, result), (factors, early, fell_back) = newton_members(
+                fn, carry[4], factors=factors, refresh=count % period == 0, **options
+            )
+            extra = (factors, next_periods(period, early, fell_back), count + 1)
+        else:
+            zt, (iterations, rel, result) = newton_members(fn, carry[4], **options)
+        z = from_member_arrays(zt, z.shape)
         g, q, M, P, regular = update(params, hc, z, g, q, n, a, boundary=boundary)
         result = jnp.where(regular[()], result, jnp.int8(SINGULAR_DIFFERENCE_MAP))
         new = layout.flat((g, q, M, P, z), n_members, dtype)
         (failed,) = boundary([result != SUCCESS])  # read by every component of the state
-        return _nan_where(failed, new), (iterations, rel, result)
+        return (_nan_where(failed, new), extra), (iterations, rel, result)
 
+    step.start = start
     return step
 
 
@@ -154,7 +206,12 @@ def _one_step(step, gammas, h):
 def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries):
     dtype = jnp.asarray(h).dtype
     params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
-    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries)
+    # A composed step (orders 4, 6) changes h every sub-step: a fresh Jacobian each.
+    carry = CARRY_FACTORS
+    if carry is None:
+        carry = len(gammas) == 1 and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
+    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carry and len(gammas) == 1)
+    carry0 = (carry0, step.start(carry0))
     one_step = _one_step(step, gammas, h)
 
     def worst_step(carry, _):
@@ -169,16 +226,21 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
     """(initial state, (saved states, statistics)) of every member, members first, with static
     step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
-    saved, stats = scan_member_nodes(worst_step, carry0, jax.tree.leaves, n_saved, save_every, checkpoint, n_members, dtype)
-    return state0, _unpack(layout, carry0, saved, stats)
+    saved, stats = scan_member_nodes(worst_step, carry0, _saved, n_saved, save_every, checkpoint, n_members, dtype)
+    return state0, _unpack(layout, carry0[0], saved, stats)
 
 
 def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
     run length."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
-    saved, stats = loop_member_nodes(worst_step, carry0, jax.tree.leaves, n_saved, save_every, capacity, n_members, dtype)
-    return state0, _unpack(layout, carry0, saved, stats)
+    saved, stats = loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype)
+    return state0, _unpack(layout, carry0[0], saved, stats)
+
+
+def _saved(state):
+    """The member arrays a node saves: the carry, not the step's factors."""
+    return jax.tree.leaves(state[0])
 
 
 def _unpack(layout, carry0, saved, stats):

@@ -4,6 +4,12 @@ are a tuple of arrays over the members, nothing couples two members. The iterati
 masked fallback Newton steps while some member has not converged, a final correction;
 implicit-function gradients through ``jax.lax.custom_root``.
 
+Carried factors (the generated step, one step after another): the first Newton step may use
+the LU factors of an earlier step's Jacobian instead of a fresh one — chord steps from the
+start — for the members whose refresh schedule (:func:`next_periods`) says so. On the
+vehicle at order 2 the Jacobian is over half of a step's operations (``python
+benchmarks/generated_step_hlo.py``); the solution is converged to the same tolerance either way.
+
 The Jacobian's entries may be known constants or scalars shared by all members (the generated
 step's forward-mode Jacobian keeps them so: e.g. ∂P/∂ξ = 0 and ∂P/∂ν = M for a separable
 scene); the unrolled LU below folds them, so only the entries that differ per member cost
@@ -108,12 +114,36 @@ def _axpy(s, x, y):
     return tuple(s * a + b for a, b in zip(x, y))
 
 
-def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS, value_and_jacobian=None):
+MAX_PERIOD = 16  # steps between two Jacobians of a member at most (carried factors)
+EARLY = 1000  # "converged one chord step early": the residual within EARLY × tolerance there
+
+
+def next_periods(period, early, fell_back):
+    """Each member's refresh period after a step with carried factors: doubled (up to
+    ``MAX_PERIOD``) when the residual before the last chord step was within ``EARLY`` times the
+    tolerance (the last step, contracting by the factor ~1e-3 of a near-fresh Jacobian, then
+    converges), halved otherwise, 1 after the fallback iterations. A member refreshes its
+    factors at the steps whose count its period divides. Periods are powers of two: when the
+    members of a chunk refresh, all those whose period divides the count do, in one Jacobian
+    evaluation, however many there are; the others keep theirs (results are per member)."""
+    grown = jnp.where(early, jnp.minimum(2 * period, MAX_PERIOD), jnp.maximum(period // 2, 1))
+    return jnp.where(fell_back, 1, grown)
+
+
+def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS, value_and_jacobian=None,
+                   factors=None, refresh=None):
     """Solve ``fn(z) = 0`` for every member at once; ``z`` is a tuple of member arrays and
     ``fn(z) -> (residual, scale)`` (same tuple structure; scale per member) must not couple
     members. ``value_and_jacobian(z) -> (residual, scale, rows)`` gives the Jacobian (default:
     forward mode through ``fn``, column by column). Returns z and per-member (iterations,
-    relative residual, result)."""
+    relative residual, result).
+
+    ``factors`` (LU factors of member arrays, as :func:`lu` returns) and ``refresh`` (per member):
+    the members with ``refresh`` take the Jacobian at ``z0``, the others keep ``factors``; then
+    also returns (the factors to carry: the fallback's last ones where it ran, whether the
+    chord steps converged one step early, whether the fallback ran), per member."""
+
+    carrying = factors is not None
 
     def residual_only(z):
         return fn(z)[0]
@@ -141,10 +171,28 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         r, scale, jac = value_and_jacobian_rows(z)
         return r, scale, lu(jac)
 
+    def as_members(tree):
+        return jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x, z0[0].dtype), jnp.shape(z0[0])), tree)
+
+    def first_factors(z):
+        """The residual at z, the factors of the first Newton step, and the Jacobian if it is
+        a fresh one for every member."""
+        if factors is None:
+            r, scale, jac = value_and_jacobian_rows(z)
+            return r, scale, lu(jac), jac
+
+        def fresh(z):
+            r, scale, jac = value_and_jacobian_rows(z)
+            return r, scale, _where(refresh, as_members(lu(jac)), factors)
+
+        def kept(z):
+            return fn(z) + (factors,)
+
+        return jax.lax.cond(jnp.any(refresh), fresh, kept, z) + (None,)
+
     def solve(_, z):
-        r, scale, jac = value_and_jacobian_rows(z)
-        factors = lu(jac)
-        if all(jnp.ndim(entry) == 0 for row in jac for entry in row):
+        r, scale, factors, jac = first_factors(z)
+        if jac is not None and all(jnp.ndim(entry) == 0 for row in jac for entry in row):
             # No Jacobian entry is a member array, so none depends on z: fn is affine and one
             # Newton step solves it (e.g. the inverse Legendre map of a kinetic energy quadratic
             # in the velocities); one more step with the same factors refines it. No loop and
@@ -153,9 +201,12 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             r, scale = fn(z)
             return _finish(jnp.ones(jnp.shape(scale), jnp.int32), _axpy(-1.0, lu_solve(factors, r), z), r, scale)
         n_chord = max(min(chord_iterations, max_iterations - 1), 0)
-        for _ in range(1 + n_chord):
+        early = jnp.zeros(jnp.shape(scale), bool)
+        for k in range(1 + n_chord):
             z = _axpy(-1.0, lu_solve(factors, r), z)
             r, scale = fn(z)
+            if k == n_chord - 1:
+                early = norm(r) <= EARLY * rtol * scale
         i = jnp.full(jnp.shape(scale), 1 + n_chord, jnp.int32)
 
         def active_of(i, r, scale):
@@ -171,32 +222,41 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
 
         def fallback(state):
             # Folded (constant or shared) LU entries become member arrays: a loop carry.
-            as_members = lambda x: jnp.broadcast_to(jnp.asarray(x, z[0].dtype), jnp.shape(z[0]))  # noqa: E731
             i, z_, r, scale = state
-            loop = (i, z_, r, scale, jax.tree.map(as_members, factors), active_of(i, r, scale))
+            loop = (i, z_, r, scale, as_members(factors), active_of(i, r, scale))
             i, z_, r, scale, last, _ = jax.lax.while_loop(lambda s: jnp.any(s[-1]), body, loop)
-            return i, _axpy(-1.0, lu_solve(last, r), z_), r, scale
+            return (i, _axpy(-1.0, lu_solve(last, r), z_), r, scale) + ((last,) if carrying else ())
 
         def common(state):  # the final correction with the first Jacobian
             i, z_, r, scale = state
-            return i, _axpy(-1.0, lu_solve(factors, r), z_), r, scale
+            return (i, _axpy(-1.0, lu_solve(factors, r), z_), r, scale) + ((factors,) if carrying else ())
 
+        fell_back = active_of(i, r, scale)
         if max_iterations <= 1 + n_chord:  # the full iterations could never run: none compiled
-            return _finish(*common((i, z, r, scale)))
-        return _finish(*jax.lax.cond(jnp.any(active_of(i, r, scale)), fallback, common, (i, z, r, scale)))
+            out = common((i, z, r, scale))
+        else:
+            out = jax.lax.cond(jnp.any(fell_back), fallback, common, (i, z, r, scale))
+        if not carrying:
+            return _finish(*out[:4])
+        return _finish(*out[:4], carry=(out[4], early, fell_back))
 
-    def _finish(i, z, r, scale):
-        """z with per-member (iterations, relative residual, result), r the residual before the
-        last correction."""
+    def _finish(i, z, r, scale, carry=()):
+        """z with per-member (iterations, relative residual, result) and what ``factors`` asks
+        to carry, r the residual before the last correction."""
         rel = norm(r) / jnp.where(scale > 0, scale, 1.0)
         ok = finite(z) & finite(r)
         result = jnp.where(~ok, NONFINITE, jnp.where(rel <= rtol, SUCCESS, MAX_ITERATIONS))
-        dtype = z[0].dtype  # custom_root's JVP rule mishandles integer auxiliary outputs
-        return z, (i.astype(dtype), rel, result.astype(dtype))
+        dtype = z[0].dtype  # custom_root's JVP rule mishandles non-float auxiliary outputs
+        carry = jax.tree.map(lambda x: x.astype(dtype), carry)
+        return z, (i.astype(dtype), rel, result.astype(dtype)) + carry
 
     def tangent_solve(linear, y):
         return lu_solve(lu(columns(linear, y)), y)
 
-    z, (i, rel, result) = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
-    stats = (i.astype(jnp.int32), rel, result.astype(jnp.int8))
-    return z, jax.lax.stop_gradient(stats)
+    z, aux = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
+    i, rel, result = aux[:3]
+    stats = jax.lax.stop_gradient((i.astype(jnp.int32), rel, result.astype(jnp.int8)))
+    if not carrying:
+        return z, stats
+    carried, early, fell_back = jax.lax.stop_gradient(aux[3:])
+    return z, stats, (carried, early.astype(bool), fell_back.astype(bool))
