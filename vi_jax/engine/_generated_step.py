@@ -9,7 +9,9 @@ and its forward-mode Jacobian, the F⁺ update — each run on component arrays
 members, so XLA fuses a whole Newton iteration into one loop over the members. Newton itself
 (:func:`newton_members`) runs on those tuples with the iteration of ``vj.simulate``: one
 Newton step, two chord steps, a check, masked fallback iterations while a member has not
-converged, a final correction, implicit-function gradients. A failed step turns the member's
+converged, a final correction, implicit-function gradients; on the CPU plan, where the
+Jacobian costs most, the first step may be a chord step on factors carried from an earlier step
+(:func:`make_step`, :func:`~._member_newton.next_periods`). A failed step turns the member's
 state to NaN, as ``vj.simulate`` does.
 """
 
