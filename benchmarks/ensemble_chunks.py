@@ -1,8 +1,13 @@
 """Members per chunk of the generated batched step on CPU: ``vj.ensemble`` (1024 members × 1000
-steps, final node saved, Cayley) with the chunk size forced to 64, 256 and 1024, compiled code
-only (median of 5). Decided ``CHUNK`` = 64 for the generated step too: 256 is up to 1.3× faster
-for some scenes and 2.8× slower for others (XLA:CPU splits larger loops over the cores), 1024
-is never faster than 64 by more than 2%.
+steps, final node saved, Cayley) with the chunk size forced to 64, 256, 512 and 1024, compiled
+code only (median of 5). Keeps ``CHUNK`` = 64. Run on 6060d65 (carried factors for the order-2
+scenes), default XLA: 512 is 1.36× (heavy top, order 1) and 1.57× (rigid body, order 2) faster
+than 64, a thunk costing the same for 512 members as for 64; but 0.45–0.99× for the order-2
+scenes at 256 or 512 (the heavy top 1.34× at 1024) and 0.93× for the rigid body at 1024: XLA:CPU splits a fusion over the cores once
+its cost model's estimate passes a threshold (``outer_dimension_partitions`` in the optimised
+HLO: 2 fusions of the order-2 heavy top at 64 members, 70 at 512), and which fusions it splits,
+at which size, varies by scene. With the loop option 64 is within 3.1% of the best size for every
+scene; 512 and 1024 give 0.71–0.99×.
 
     python benchmarks/ensemble_chunks.py [--members 1024] [--steps 1000] [--fast-loops]
 """
@@ -37,7 +42,7 @@ def main():
         model = scene()
         x0 = model.initial_state()
         states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(n, 3)))
-        for chunk in (64, 256, 1024):
+        for chunk in (64, 256, 512, 1024):
             _ensemble.CHUNK = chunk
             run = eqx.filter_jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, steps, order=order, save_every=steps, method="batched", throw=False).g[:, -1])
             compile_s, t, _ = time_compiled(run, model, states, jnp.asarray(h), repeats=5)
