@@ -5,6 +5,9 @@ the operations XLA copied into them, so the count exceeds the jaxpr's where XLA 
 cheap subexpressions), and the thunks XLA:CPU dispatches one by one with its default flags:
 loop fusions, conditionals (the step's fusion boundaries) and the copies their branches make.
 For the vehicle at order 1 the generated step is shown (``vj.ensemble`` runs its hand kernel).
+Where Newton's factors are carried from step to step (the order-2 scenes), a step that takes a
+Jacobian is counted (the refresh conditional's taken branch is its last one, as for the
+boundaries).
 
     python benchmarks/generated_step_hlo.py
 """
@@ -73,15 +76,15 @@ def census(comps, name, taken_branch=False):
 
 
 def step_body(comps):
-    """The innermost step loop's body: the while body with the most fusions that holds no loop
-    over steps itself."""
+    """The innermost step loop's body: the while body with the most fusions, counted with those
+    of its conditionals' counted branches (a loop nested in it is not counted: the loops over
+    saved nodes hold few fusions of their own)."""
     bodies = []
     for lines in comps.values():
         for line in lines:
             m = re.search(r" while\(.*body=%([^,\s]+)", line)
             if m:
-                body = comps[m.group(1)]
-                bodies.append((sum(" fusion(" in x for x in body), m.group(1)))
+                bodies.append((census(comps, m.group(1))["fusions"], m.group(1)))
     return max(bodies)[1]
 
 
