@@ -210,10 +210,11 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
     # A composed step (orders 4, 6) changes h every sub-step: a fresh Jacobian each. Measured on
     # the CPU plan only: a GPU's whole batch would take a Jacobian whenever one member does.
-    carry = CARRY_FACTORS
-    if carry is None:
-        carry = boundaries and len(gammas) == 1 and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
-    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carry and len(gammas) == 1)
+    carried = len(gammas) == 1 and (
+        boundaries and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
+        if CARRY_FACTORS is None else CARRY_FACTORS
+    )
+    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried)
     carry0 = (carry0, step.start(carry0))
     one_step = _one_step(step, gammas, h)
 
