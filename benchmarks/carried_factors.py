@@ -29,7 +29,7 @@ from vi_jax.lie import difference_map  # noqa: E402
 MEMBERS, STEPS, REPEATS = 1024, 1000, 7
 CASES = [("rigid_body", vj.models.RigidBody, 0.01, 2), ("heavy_top", vj.models.HeavyTop, 0.005, 1),
          ("heavy_top", vj.models.HeavyTop, 0.005, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 1),
-         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2)]
+         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 4)]
 
 
 def compiled(model, states, h, order, carry):

@@ -124,10 +124,15 @@ def _states(x0, seed):
 
 
 @pytest.mark.parametrize("name", list(SCENES))
-def test_generated_step_equals_simulate_member_by_member(name):
+def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     """Every member equals its own ``vj.simulate`` run: the same scheme and Newton iteration on
     component arrays, so each step may stop at an iterate that differs within Newton's
-    tolerance 64ε (a random walk of √n such steps, with a factor 4 for its tail)."""
+    tolerance 64ε (a random walk of √n such steps, with a factor 4 for its tail). A fresh
+    Jacobian every step, as ``vj.simulate`` takes (carried factors: tests/test_carried_factors.py)."""
+    from vi_jax.engine import _generated_step
+
+    monkeypatch.setattr(_generated_step, "CARRY_FACTORS", False)
+    jax.clear_caches()  # the switch is read at trace time
     system, x0, tau, order, h = _scene(name)
     n_steps, save_every = 120, 8
     states = _states(x0, 1)
@@ -142,6 +147,7 @@ def test_generated_step_equals_simulate_member_by_member(name):
     kn = np.asarray(sol.kelvin_noether).reshape(N_MEMBERS, n_steps // save_every + 1, -1)
     scale = np.asarray(sol.kelvin_noether_scale).reshape(N_MEMBERS, -1).max(axis=1)
     assert np.all(np.max(np.abs(kn - kn[:, :1]), axis=(1, 2)) <= 1e-12 * scale)
+    jax.clear_caches()
 
 
 def test_generated_step_has_no_small_dense_algebra():

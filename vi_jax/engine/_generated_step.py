@@ -26,7 +26,7 @@ from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
 from ._member_loops import loop_member_nodes, scan_member_nodes
-from ._member_newton import lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
+from ._member_newton import MAX_PERIOD, lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
 
 
 def _pieces(static, tau, rule):
@@ -57,11 +57,11 @@ def _pieces(static, tau, rule):
 FIELDS = ("g", "q", "M", "P", "z")
 # Newton's factors carried from step to step (make_step): None carries them where the residual
 # with its Jacobian costs at least CARRY_COST residuals (jacobian_cost), True / False everywhere /
-# nowhere (the benchmark's switch). python benchmarks/carried_factors.py [--fast-loops]: 1.8x
-# faster on the vehicle at order 2 (cost 5.1), 1.08-1.11x on the heavy top at order 2 (3.4),
-# 0.79-1.09x on the other scenes (2.1-2.2), whose Jacobian costs less than carrying its factors.
+# nowhere (the benchmark's switch). python benchmarks/carried_factors.py: 1.84x faster on the
+# vehicle at order 2 and 1.78x at order 4 (cost 5.1); 0.84-0.96x on the heavy top (3.4, 2.2),
+# the rigid body and the vehicle at order 1 (2.1), whose Jacobian costs less than carrying.
 CARRY_FACTORS = None
-CARRY_COST = 3
+CARRY_COST = 4
 
 
 class _Layout(eqx.Module):
@@ -142,17 +142,19 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
     member arrays; ``boundaries``: the fusion boundaries of :func:`_boundary` at the residuals,
     the Jacobian and the values the step marks as shared (the CPU plan; a GPU fuses without
     them and would pay a conditional per boundary). ``carry_factors``: ``extra`` holds each
-    member's LU factors, refresh period and the step count (:func:`next_periods`); else ``()``
+    member's LU factors, refresh period and its ceiling, and the step count (:func:`next_periods`); else ``()``
     and every step takes a fresh Jacobian. ``step.start(carry)`` is the first ``extra``."""
     equations, update = _equations_of(static, params, tau, rule, n_members, layout, boundaries)
 
     def start(carry):
-        """Factors of the identity with period 1: every member takes a Jacobian at step 0."""
+        """Factors of the identity with period 2 (ceiling ``MAX_PERIOD``): every member takes a
+        Jacobian at step 0 and tries it at step 1."""
         if not carry_factors:
             return ()
         z = carry[4]
         eye = [[jnp.ones_like(z[0]) if i == j else jnp.zeros_like(z[0]) for j in range(len(z))] for i in range(len(z))]
-        return lu(eye), jnp.ones((n_members,), jnp.int32), jnp.asarray(0, jnp.int32)
+        periods = (jnp.full((n_members,), 2, jnp.int32), jnp.full((n_members,), MAX_PERIOD, jnp.int32))
+        return lu(eye), periods, jnp.asarray(0, jnp.int32)
 
     def step(state, h):
         carry, extra = state
@@ -160,11 +162,12 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
         (g, q, z, n, a, hc), boundary, fn, fn_jac = equations(carry, h)
         options = dict(rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac)
         if carry_factors:
-            factors, period, count = extra
+            factors, (period, ceiling), count = extra
+            refresh = count % period == 0
             zt, (iterations, rel, result), (factors, early, fell_back) = newton_members(
-                fn, carry[4], factors=factors, refresh=count % period == 0, **options
+                fn, carry[4], factors=factors, refresh=refresh, **options
             )
-            extra = (factors, next_periods(period, early, fell_back), count + 1)
+            extra = (factors, next_periods(period, ceiling, refresh, early, fell_back), count + 1)
         else:
             zt, (iterations, rel, result) = newton_members(fn, carry[4], **options)
         z = from_member_arrays(zt, z.shape)
@@ -194,28 +197,57 @@ def _start(system, x0, axes, dtype, n_members):
 
 
 def _one_step(step, gammas, h):
-    """One (composed) step; its statistics are the worst over the sub-steps."""
+    """One (composed) step; its statistics are the worst over the sub-steps. With carried
+    factors each sub-step (its own h) keeps its own factors and periods; the step count is the
+    composed step's."""
     if len(gammas) == 1:
-        return lambda carry: step(carry, gammas[0] * h)
+        return lambda state: step(state, gammas[0] * h)
+    hs = jnp.asarray(gammas, h.dtype) * h
 
-    def composed(carry):
-        carry, stats = jax.lax.scan(step, carry, jnp.asarray(gammas, h.dtype) * h)
-        return carry, jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
+    def composed(state):
+        carry, extra = state
+        if extra == ():
+            def sub(carry, h_i):
+                (carry, _), stats = step((carry, ()), h_i)
+                return carry, ((), stats)
+
+            xs = hs
+        else:
+            factors, periods, count = extra
+
+            def sub(carry, xs):
+                h_i, factors, periods = xs
+                (carry, (factors, periods, _)), stats = step((carry, (factors, periods, count)), h_i)
+                return carry, ((factors, periods), stats)
+
+            xs = (hs, factors, periods)
+        carry, (kept, stats) = jax.lax.scan(sub, carry, xs)
+        extra = () if extra == () else kept + (count + 1,)
+        return (carry, extra), jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
 
     return composed
+
+
+def _per_sub_step(extra, gammas):
+    """The first ``extra`` of a composed step: factors and periods for each sub-step."""
+    if extra == () or len(gammas) == 1:
+        return extra
+    factors, periods, count = extra
+    stack = lambda x: jnp.broadcast_to(x, (len(gammas),) + jnp.shape(x))  # noqa: E731
+    return jax.tree.map(stack, factors), jax.tree.map(stack, periods), count
 
 
 def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries):
     dtype = jnp.asarray(h).dtype
     params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
-    # A composed step (orders 4, 6) changes h every sub-step: a fresh Jacobian each. Measured on
-    # the CPU plan only: a GPU's whole batch would take a Jacobian whenever one member does.
-    carried = len(gammas) == 1 and (
-        boundaries and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
-        if CARRY_FACTORS is None else CARRY_FACTORS
-    )
+    # Measured on the CPU plan only: a GPU's whole batch would take a Jacobian whenever one
+    # member does.
+    if CARRY_FACTORS is None:
+        carried = boundaries and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
+    else:
+        carried = CARRY_FACTORS
     step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried)
-    carry0 = (carry0, step.start(carry0))
+    carry0 = (carry0, _per_sub_step(step.start(carry0), gammas))
     one_step = _one_step(step, gammas, h)
 
     def worst_step(carry, _):

@@ -118,16 +118,21 @@ MAX_PERIOD = 16  # steps between two Jacobians of a member at most (carried fact
 EARLY = 1000  # "converged one chord step early": the residual within EARLY × tolerance there
 
 
-def next_periods(period, early, fell_back):
-    """Each member's refresh period after a step with carried factors: doubled (up to
-    ``MAX_PERIOD``) when the residual before the last chord step was within ``EARLY`` times the
-    tolerance (the last step, contracting by the factor ~1e-3 of a near-fresh Jacobian, then
-    converges), halved otherwise, 1 after the fallback iterations. A member refreshes its
-    factors at the steps whose count its period divides. Periods are powers of two: when the
-    members of a chunk refresh, all those whose period divides the count do, in one Jacobian
-    evaluation, however many there are; the others keep theirs (results are per member)."""
-    grown = jnp.where(early, jnp.minimum(2 * period, MAX_PERIOD), jnp.maximum(period // 2, 1))
-    return jnp.where(fell_back, 1, grown)
+def next_periods(period, ceiling, refreshed, early, fell_back):
+    """Each member's refresh period and its ceiling after a step with carried factors. A member
+    refreshes its factors at the steps whose count its period divides; only a step on older
+    factors tells how long they last: its period doubles (up to the ceiling) when the residual
+    before the last chord step was within ``EARLY`` times the tolerance (the last step,
+    contracting by the factor ~1e-3 of a near-fresh Jacobian, then converges) and halves
+    otherwise. The fallback iterations halve the period and make the halved period the
+    member's ceiling from then on (``MAX_PERIOD`` at first): a member whose factors do not last
+    one step takes a fresh Jacobian every step. Periods are powers of two: when the members of
+    a chunk refresh, all those whose period divides the count do, in one Jacobian evaluation,
+    however many there are; the others keep theirs (results are per member)."""
+    halved = jnp.maximum(period // 2, 1)
+    tested = jnp.where(early, jnp.minimum(2 * period, ceiling), halved)
+    period_next = jnp.where(fell_back, halved, jnp.where(refreshed, period, tested))
+    return period_next, jnp.where(fell_back, halved, ceiling)
 
 
 def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS, value_and_jacobian=None,
