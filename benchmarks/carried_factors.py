@@ -22,8 +22,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
+from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
 from vi_jax.discrete import composition_coefficients  # noqa: E402
-from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
+from vi_jax.engine import _generated_step  # noqa: E402
 from vi_jax.lie import difference_map  # noqa: E402
 
 MEMBERS, STEPS, REPEATS = 1024, 1000, 7
@@ -52,13 +53,10 @@ def jacobian_cost(model, states, h, order):
 
 def main():
     rows = []
-    kernel_applies = _ensemble._vehicle_kernel_applies
-    _ensemble._vehicle_kernel_applies = lambda *args: False  # the generated step for every scene
     try:
         for name, scene, h, order in CASES:
             model = scene()
-            x0 = model.initial_state()
-            states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(MEMBERS, 3)))
+            states = perturbed_states(model.initial_state(), MEMBERS)
             h = jnp.asarray(h)
             runs = {carry: compiled(model, states, h, order, carry) for carry in (False, True)}
             times = {False: [], True: []}
@@ -76,10 +74,10 @@ def main():
                   f"({rate[True] / rate[False]:.2f}x); worst Newton iterations {runs[False][1]} / {runs[True][1]}; "
                   f"max |g difference| {diff:.1e}", flush=True)
     finally:
-        _ensemble._vehicle_kernel_applies = kernel_applies
         _generated_step.CARRY_FACTORS = None
     write_config_json("carried_factors", ARGS.fast_loops, rows=rows)
 
 
 if __name__ == "__main__":
-    main()
+    with generated_step_for_every_scene():
+        main()

@@ -26,9 +26,9 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
+from _generated import perturbed_states  # noqa: E402
 from vi_jax.engine import _ensemble  # noqa: E402
 
 CASES = [("heavy_top", vj.models.HeavyTop, 0.005, 1), ("heavy_top", vj.models.HeavyTop, 0.005, 2),
@@ -41,7 +41,7 @@ def main():
     for name, scene, h, order in CASES:
         model = scene()
         x0 = model.initial_state()
-        states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(n, 3)))
+        states = perturbed_states(x0, n)
         for chunk in (64, 256, 512, 1024):
             _ensemble.CHUNK = chunk
             run = eqx.filter_jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, steps, order=order, save_every=steps, method="batched", throw=False).g[:, -1])

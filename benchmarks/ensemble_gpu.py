@@ -35,6 +35,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from _generated import generated_step_for_every_scene  # noqa: E402
 from _timing import time_compiled  # noqa: E402
 CASES = {"vehicle1": ("vehicle", 1), "vehicle1_generated": ("vehicle", 1), "vehicle2": ("vehicle", 2),
          "heavy_top1": ("heavy_top", 1), "heavy_top2": ("heavy_top", 2)}
@@ -69,20 +70,6 @@ def _fusion_boundaries(on):
         yield
     finally:
         _generated_step.make_step = real
-
-
-@contextlib.contextmanager
-def _generated_for(case):
-    """The vehicle at order 1 through the generated step when ``case`` says so."""
-    from vi_jax.engine import _ensemble
-
-    real = _ensemble._vehicle_kernel_applies
-    if case.endswith("_generated"):
-        _ensemble._vehicle_kernel_applies = lambda *args: False
-    try:
-        yield
-    finally:
-        _ensemble._vehicle_kernel_applies = real
 
 
 def _summary(sol):
@@ -154,7 +141,7 @@ def measure(args):
                 n_steps = args.steps or int(min(1000, max(50, 2.5e8 // members)))
                 states = _states(x0, members, dtype)
                 fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
-                with _generated_for(case), _fusion_boundaries(args.boundaries):
+                with generated_step_for_every_scene(case.endswith("_generated")), _fusion_boundaries(args.boundaries):
                     first, median, _ = time_compiled(fn, states, repeats=5)
                     last_xi, converged, g4, xi4 = fn(states)
                 converged = float(converged)

@@ -21,9 +21,9 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
+from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
 from vi_jax.engine import _ensemble  # noqa: E402
 
 MEMBERS, STEPS = 1024, 1000
@@ -90,13 +90,10 @@ def step_body(comps):
 
 def main():
     rows = []
-    kernel_applies = _ensemble._vehicle_kernel_applies
-    _ensemble._vehicle_kernel_applies = lambda *args: False  # the generated step for every scene
-    try:
+    with generated_step_for_every_scene():
         for name, scene, h, order in CASES:
             model = scene()
-            x0 = model.initial_state()
-            states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(MEMBERS, 3)))
+            states = perturbed_states(model.initial_state(), MEMBERS)
             run = jax.jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False).g[:, -1])
             comps = computations(run.lower(model, states, jnp.asarray(h)).compile().as_text())
             count = census(comps, step_body(comps))
@@ -105,8 +102,6 @@ def main():
                              conditionals=count["conditionals"], copies=count["copies"], thunks=thunks))
             print(f"{name:10s} order {order}: {count['operations']:6d} elementwise operations per member-step, "
                   f"{thunks} thunks ({count['fusions']} fusions, {count['conditionals']} conditionals, {count['copies']} copies)", flush=True)
-    finally:
-        _ensemble._vehicle_kernel_applies = kernel_applies
     write_config_json("generated_step_hlo", False, members_per_chunk=_ensemble.CHUNK, rows=rows)
 
 

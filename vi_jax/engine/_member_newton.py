@@ -182,7 +182,7 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
     def first_factors(z):
         """The residual at z, the factors of the first Newton step, and the Jacobian if it is
         a fresh one for every member."""
-        if factors is None:
+        if not carrying:
             r, scale, jac = value_and_jacobian_rows(z)
             return r, scale, lu(jac), jac
 
