@@ -1,13 +1,12 @@
 """Members per chunk of the generated batched step on CPU: ``vj.ensemble`` (1024 members × 1000
 steps, final node saved, Cayley) with the chunk size forced to 64, 256, 512 and 1024, compiled
-code only (median of 5). Keeps ``CHUNK`` = 64. Run on 6060d65 (carried factors for the order-2
-scenes), default XLA: 512 is 1.36× (heavy top, order 1) and 1.57× (rigid body, order 2) faster
-than 64, a thunk costing the same for 512 members as for 64; but 0.45–0.99× for the order-2
-scenes at 256 or 512 (the heavy top 1.34× at 1024) and 0.93× for the rigid body at 1024: XLA:CPU splits a fusion over the cores once
-its cost model's estimate passes a threshold (``outer_dimension_partitions`` in the optimised
-HLO: 2 fusions of the order-2 heavy top at 64 members, 70 at 512), and which fusions it splits,
-at which size, varies by scene. With the loop option 64 is within 3.1% of the best size for every
-scene; 512 and 1024 give 0.71–0.99×.
+code only (median of 5); the vehicle at order 1 through the generated step, not its hand
+kernel. Decided ``members_per_chunk`` (``vi_jax/engine/_generated_step.py``): with default XLA
+512 members (``LIGHT_CHUNK``) where the residual with its Jacobian has at most 1000 operations
+per member (the rigid body, the order-1 heavy top and vehicle: a thunk costs the same for 512
+members as for 64), else 64 (``CHUNK``; the order-2 scenes lose up to 2× at 256 or 512); with
+the loop option 64 everywhere. Printed with each row: those operations (``newton_operations``)
+and the chunk size ``vj.ensemble`` picks.
 
     python benchmarks/ensemble_chunks.py [--members 1024] [--steps 1000] [--fast-loops]
 """
@@ -28,11 +27,14 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import perturbed_states  # noqa: E402
-from vi_jax.engine import _ensemble  # noqa: E402
+from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
+from vi_jax.discrete import composition_coefficients  # noqa: E402
+from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
+from vi_jax.lie import difference_map  # noqa: E402
 
 CASES = [("heavy_top", vj.models.HeavyTop, 0.005, 1), ("heavy_top", vj.models.HeavyTop, 0.005, 2),
-         ("rigid_body", vj.models.RigidBody, 0.01, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2)]
+         ("rigid_body", vj.models.RigidBody, 0.01, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 1),
+         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2)]
 
 
 def main():
@@ -40,16 +42,20 @@ def main():
     rows = []
     for name, scene, h, order in CASES:
         model = scene()
-        x0 = model.initial_state()
-        states = perturbed_states(x0, n)
+        states = perturbed_states(model.initial_state(), n)
+        axes = (jax.tree.map(lambda _: None, model), jax.tree.map(lambda _: 0, states))
+        scheme = (model, states, axes, jnp.asarray(h), difference_map("cayley"), composition_coefficients(order)[0], n)
+        picked, operations = _generated_step.members_per_chunk(*scheme), _generated_step.newton_operations(*scheme)
         for chunk in (64, 256, 512, 1024):
-            _ensemble.CHUNK = chunk
+            _ensemble.members_per_chunk = lambda *args, chunk=chunk: chunk
+            jax.clear_caches()  # the chunk is read at trace time
             run = eqx.filter_jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, steps, order=order, save_every=steps, method="batched", throw=False).g[:, -1])
             compile_s, t, _ = time_compiled(run, model, states, jnp.asarray(h), repeats=5)
-            rows.append(dict(scene=name, order=order, chunk=chunk, members=n, steps=steps, seconds=t, rate=n * steps / t, compile_s=compile_s))
-            print(f"{name:10s} order {order} chunk {chunk:5d}: {n * steps / t / 1e6:6.2f} M member-steps/s (compile {compile_s:.1f} s)", flush=True)
+            rows.append(dict(scene=name, order=order, chunk=chunk, picked=picked, newton_operations=operations, members=n, steps=steps, seconds=t, rate=n * steps / t, compile_s=compile_s))
+            print(f"{name:10s} order {order} chunk {chunk:5d}: {n * steps / t / 1e6:6.2f} M member-steps/s (compile {compile_s:.1f} s; {operations} operations per member in the residual with its Jacobian: picked {picked})", flush=True)
     write_config_json("ensemble_chunks", ARGS.fast_loops, rows=rows)
 
 
 if __name__ == "__main__":
-    main()
+    with generated_step_for_every_scene():
+        main()

@@ -1,5 +1,6 @@
 """What XLA:CPU makes of the generated batched step: a census of the optimised HLO of one step
-(the body of the innermost step loop of ``vj.ensemble``, 64 members per chunk, Cayley), with
+(the body of the innermost step loop of ``vj.ensemble``, 64 members per chunk for every scene,
+Cayley), with
 no timing. Per scene: the elementwise operations per member (fused computations counted with
 the operations XLA copied into them, so the count exceeds the jaxpr's where XLA duplicates
 cheap subexpressions), and the thunks XLA:CPU dispatches one by one with its default flags:
@@ -90,6 +91,7 @@ def step_body(comps):
 
 def main():
     rows = []
+    _ensemble.members_per_chunk = lambda *args: _ensemble.CHUNK  # light steps too (they pick 512)
     with generated_step_for_every_scene():
         for name, scene, h, order in CASES:
             model = scene()

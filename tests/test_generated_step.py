@@ -231,6 +231,59 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
 
 
+def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
+    """The CPU plan's members per chunk follow the step's cost: the rigid body's residual with
+    its Jacobian is light (``LIGHT_CHUNK``), the order-2 vehicle's is not (``CHUNK``), and under
+    the loop option every scene keeps ``CHUNK``. ``LIGHT_CHUNK`` + 9 members run as two equal
+    chunks (the second padded): the members on both sides of the seam and the last one equal
+    their own ``vj.simulate`` runs."""
+    from vi_jax.discrete import composition_coefficients
+    from vi_jax.engine import _ensemble
+    from vi_jax.engine._generated_step import members_per_chunk
+    from vi_jax.engine._member_split import CHUNK, LIGHT_CHUNK
+    from vi_jax.lie import difference_map
+
+    def chunk_of(system, order, h):
+        states = _states(system.initial_state(), 2)
+        axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, states))
+        rule, _ = composition_coefficients(order)
+        return members_per_chunk(system, states, axes, jnp.asarray(h), difference_map("cayley"), rule, N_MEMBERS)
+
+    loop_option = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+    monkeypatch.setenv("XLA_FLAGS", loop_option)  # read at trace time: whatever this process runs with
+    assert chunk_of(vj.models.RigidBody(), 2, 0.01) == CHUNK
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert chunk_of(vj.models.RigidBody(), 2, 0.01) == LIGHT_CHUNK
+    assert chunk_of(vj.models.UnderwaterVehicle(), 2, 0.01) == CHUNK
+
+    seen, sizes = [], []
+
+    def in_chunks(dynamic, static, axes, n_members, chunk, kernel):
+        seen.append(chunk)
+
+        def sized(system, x0, n):
+            sizes.append(n)
+            return kernel(system, x0, n)
+
+        return in_chunks.__wrapped__(dynamic, static, axes, n_members, chunk, sized)
+
+    in_chunks.__wrapped__ = _ensemble.in_chunks
+    monkeypatch.setattr(_ensemble, "in_chunks", in_chunks)
+    jax.clear_caches()  # the chunk is chosen at trace time
+    system, x0, tau, order, h = _scene("rigid body, exp, order 1")
+    n, n_steps, save_every = LIGHT_CHUNK + 9, 40, 8
+    states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.1 * np.random.default_rng(3).normal(size=(n, 3)))
+    sol = vj.ensemble(system, states, h, n_steps, tau=tau, order=order, save_every=save_every, method="batched")
+    half = -(-n // 16) * 8  # two chunks of whole SIMD lanes (8)
+    assert seen == [LIGHT_CHUNK] and sizes == [half]
+    for k in (0, half - 1, half, n - 1):
+        ref = vj.simulate(system, jax.tree.map(lambda x: x[k], states), h, n_steps, tau=tau, order=order, save_every=save_every)
+        for field in ("g", "xi", "M"):
+            ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
+            assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * np.max(np.abs(theirs)), (k, field)
+    jax.clear_caches()
+
+
 def _quartic_top():
     """A free top whose kinetic energy is not quadratic (ℓ = ½ξᵀJξ + ¼κ|ξ|⁴): its inverse
     Legendre map is nonlinear, so Newton iterates."""

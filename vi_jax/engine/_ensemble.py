@@ -12,7 +12,8 @@ tests/test_generated_step.py):
   :class:`~vi_jax.models.UnderwaterVehicle` at ``order=1`` a hand-written kernel of the
   paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still 1.5–2× faster, and is used there. The plan
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
-  ``CHUNK`` one after another (cache-sized); on a GPU the whole batch is in every kernel (H100,
+  ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
+  default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
   vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
   CPU plan; README, ``benchmarks/ensemble_gpu.py``).
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products
@@ -56,7 +57,7 @@ from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
-from ._generated_step import generated_loop, generated_scan, generated_solution
+from ._generated_step import generated_loop, generated_scan, generated_solution, members_per_chunk
 from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
 
 METHODS = ("auto", "batched", "vmap")
@@ -229,6 +230,8 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     if batched == "generated":
         rule, gammas = composition_coefficients(order)
+        if chunk is not None:
+            chunk = members_per_chunk(system, x0, axes, h, tau, rule, n_members)
 
         def kernel(system, x0, n):
             return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint, chunk is not None)
@@ -280,6 +283,9 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
     if batched == "generated":
+        if chunk is not None:
+            chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
+
         def kernel(system, x0, n):
             return generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n, chunk is not None)
 

@@ -25,7 +25,9 @@ from ..solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
 from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
+from .._xla_flags import loop_option_requested
 from ._member_loops import loop_member_nodes, scan_member_nodes
+from ._member_split import CHUNK, LIGHT_CHUNK
 from ._member_newton import MAX_PERIOD, lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
 
 
@@ -62,6 +64,7 @@ FIELDS = ("g", "q", "M", "P", "z")
 # the rigid body and the vehicle at order 1 (2.1), whose Jacobian costs less than carrying.
 CARRY_FACTORS = None
 CARRY_COST = 4
+LIGHT_OPERATIONS = 1000  # members_per_chunk
 
 
 class _Layout(eqx.Module):
@@ -129,12 +132,37 @@ def _member_operations(jaxpr, n_members):
     return count
 
 
-def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
-    """The residual with its Jacobian, in residuals: operations per member in their jaxprs."""
+def _residual_operations(static, params, tau, rule, n_members, layout, carry, h):
+    """Operations per member in the jaxprs of the residual and of the residual with its Jacobian."""
     equations, _ = _equations_of(static, params, tau, rule, n_members, layout, False)
     _, _, fn, fn_jac = equations(carry, h)
-    size = lambda f: _member_operations(jax.make_jaxpr(f)(carry[4]).jaxpr, n_members)  # noqa: E731
-    return size(fn_jac) / size(fn)
+    return tuple(_member_operations(jax.make_jaxpr(f)(carry[4]).jaxpr, n_members) for f in (fn, fn_jac))
+
+
+def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
+    """The residual with its Jacobian, in residuals: operations per member in their jaxprs."""
+    residual, with_jacobian = _residual_operations(static, params, tau, rule, n_members, layout, carry, h)
+    return with_jacobian / residual
+
+
+def members_per_chunk(system, x0, axes, h, tau, rule, n_members):
+    """Members per chunk of the CPU plan: ``LIGHT_CHUNK`` where the residual with its Jacobian
+    has at most ``LIGHT_OPERATIONS`` operations per member (:func:`newton_operations`) and
+    XLA:CPU dispatches a loop's fused operations one by one (default flags), else ``CHUNK``.
+    ``python benchmarks/ensemble_chunks.py``: 512 members ran 1.19-1.53x faster than 64 for the
+    rigid body, the order-1 heavy top and vehicle (257-548 operations), a dispatch costing the
+    same for 512 members as for 64; the order-2 heavy top and vehicle (1558, 3973) ran 0.3-1.5x
+    at 256-1024, varying by up to 2.4x between runs (XLA:CPU splits their fusions over the
+    cores there); with the loop option 64 is within 3.4% of the best size for every scene."""
+    if loop_option_requested():
+        return CHUNK
+    return LIGHT_CHUNK if newton_operations(system, x0, axes, h, tau, rule, n_members) <= LIGHT_OPERATIONS else CHUNK
+
+
+def newton_operations(system, x0, axes, h, tau, rule, n_members):
+    """Operations per member in the jaxpr of the residual with its Jacobian."""
+    params, static, _, layout, carry0 = _start(system, x0, axes, jnp.asarray(h).dtype, n_members)
+    return _residual_operations(static, params, tau, rule, n_members, layout, carry0, h)[1]
 
 
 def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False):

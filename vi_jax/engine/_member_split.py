@@ -15,17 +15,19 @@ def pad_members(x, size):
 
 
 CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/ensemble.py)
+LIGHT_CHUNK = 512  # the same for a light generated step (_generated_step.members_per_chunk)
 
 
 def in_chunks(dynamic, static, axes, n_members, chunk, kernel):
     """``kernel(system, x0, n_members)`` (a batched kernel with the run's other arguments bound)
-    over chunks of ``chunk`` members, one chunk after the other (None: all members at once). On
+    over chunks of at most ``chunk`` members, one chunk after the other (None: all members at once). On
     CPU (``CHUNK``) the working set of a chunk stays in cache, and XLA:CPU runs a small loop as
     one kernel rather than one dispatch per fused operation (several times faster per member); a
     GPU wants the whole batch in every kernel (``benchmarks/ensemble_gpu.py``)."""
     if chunk is None or n_members <= chunk:
         return kernel(*eqx.combine(dynamic, static), n_members)
     n_chunks = -(-n_members // chunk)
+    chunk = -(-n_members // (8 * n_chunks)) * 8  # as few padded copies as whole SIMD lanes allow
     padded = n_chunks * chunk
     is_none = lambda x: x is None  # noqa: E731
 
