@@ -284,6 +284,61 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
     jax.clear_caches()
 
 
+def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
+    """Rows of the Jacobian whose entries are shared by all members (affine in the unknowns,
+    constant coefficients) and zero outside as many unknowns are solved first, exactly; Newton
+    runs on the rest. The vehicle at order 1: P_k = ℓ_ν − hℓ_n (seed 000 eq. 74) makes ν explicit,
+    so Newton sees ω alone (3 unknowns of 6), and the members still equal their own
+    ``vj.simulate`` runs (a 6×6 Newton there); at order 2 the rule couples ξ and ν: no block."""
+    from vi_jax.discrete import composition_coefficients
+    from vi_jax.engine import _generated_step, _member_newton
+    from vi_jax.engine._member_newton import explicit_block
+    from vi_jax.lie import difference_map
+
+    member, shared = jnp.ones(N_MEMBERS), jnp.asarray(2.0)
+    assert explicit_block([[member, member], [0.0, shared]]) == ([1], [1])
+    assert explicit_block([[member, member], [shared, shared]]) is None  # ν's row reads ξ
+    assert explicit_block([[member, 0.0], [member, member]]) is None
+
+    sizes = []
+    newton = _member_newton.newton_members
+
+    def spy(fn, z0, **kwargs):
+        sizes.append(len(z0))
+        return newton(fn, z0, **kwargs)
+
+    monkeypatch.setattr(_member_newton, "newton_members", spy)
+    jax.clear_caches()  # traced afresh, through the spy
+    system = vj.models.UnderwaterVehicle()
+    states = _states(system.initial_state(), 4)
+    n_steps = 40
+    sol = vj.ensemble(system, states, 0.01, n_steps, save_every=8, method="batched")
+    assert sizes and set(sizes) == {3}
+    for k in (0, N_MEMBERS - 1):
+        ref = vj.simulate(system, jax.tree.map(lambda x: x[k], states), 0.01, n_steps, save_every=8)
+        for field in ("g", "xi", "nu", "M", "P", "newton_iterations", "result"):
+            ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
+            assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * max(np.max(np.abs(theirs)), 1.0), field
+    jax.clear_caches()
+
+    def block_of(order):  # traced only
+        axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, states))
+        params, static, _, layout, carry = _generated_step._start(system, states, axes, jnp.float64, N_MEMBERS)
+        rule, _ = composition_coefficients(order)
+        equations, _ = _generated_step._equations_of(static, params, difference_map("cayley"), rule, N_MEMBERS, layout, False)
+        found = []
+
+        def trace(z):
+            found.append(explicit_block(equations(carry, jnp.asarray(0.01))[3](z)[2]))
+            return z
+
+        jax.make_jaxpr(trace)(carry[4])
+        return found[0]
+
+    assert block_of(1) == ([3, 4, 5], [3, 4, 5])
+    assert block_of(2) is None
+
+
 def _quartic_top():
     """A free top whose kinetic energy is not quadratic (ℓ = ½ξᵀJξ + ¼κ|ξ|⁴): its inverse
     Legendre map is nonlinear, so Newton iterates."""

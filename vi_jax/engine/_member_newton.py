@@ -118,6 +118,19 @@ MAX_PERIOD = 16  # steps between two Jacobians of a member at most (carried fact
 EARLY = 1000  # "converged one chord step early": the residual within EARLY × tolerance there
 
 
+def _is_zero(entry):
+    return not isinstance(entry, jax.core.Tracer) and jnp.ndim(entry) == 0 and float(entry) == 0.0
+
+
+def explicit_block(jac):
+    """(rows, columns) of a Jacobian, known at trace time, where those rows have shared (not
+    per-member) entries, so they are affine in the unknowns with constant coefficients, and are
+    zero outside those columns, as many as the rows; None if no row is so."""
+    rows = [i for i, row in enumerate(jac) if all(jnp.ndim(e) == 0 for e in row)]
+    cols = sorted({j for i in rows for j, e in enumerate(jac[i]) if not _is_zero(e)})
+    return (rows, cols) if rows and len(cols) == len(rows) else None
+
+
 def next_periods(period, ceiling, refreshed, early, fell_back):
     """Each member's refresh period and its ceiling after a step with carried factors. A member
     refreshes its factors at the steps whose count its period divides; only a step on older
@@ -197,6 +210,9 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
 
     def solve(_, z):
         r, scale, factors, jac = first_factors(z)
+        block = None if jac is None else explicit_block(jac)
+        if block is not None and len(block[0]) < len(z):
+            return solve_explicit_first(z, r, jac, *block)
         if jac is not None and all(jnp.ndim(entry) == 0 for row in jac for entry in row):
             # No Jacobian entry is a member array, so none depends on z: fn is affine and one
             # Newton step solves it (e.g. the inverse Legendre map of a kinetic energy quadratic
@@ -244,6 +260,38 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         if not carrying:
             return _finish(*out[:4])
         return _finish(*out[:4], carry=(out[4], early, fell_back))
+
+    def solve_explicit_first(z, r, jac, rows, cols):
+        """Rows affine in the unknowns ``cols`` alone, with shared coefficients (e.g. the
+        additional dynamics of seed 000 eq. 74, ν explicit): solved exactly first; Newton then
+        runs on the other unknowns only, with these fixed."""
+        block = lu([[jac[i][j] for j in cols] for i in rows])
+        z = list(z)
+        for j, dz in zip(cols, lu_solve(block, tuple(r[i] for i in rows))):
+            z[j] = z[j] - dz
+        rest_rows = [i for i in range(len(z)) if i not in rows]
+        rest = [j for j in range(len(z)) if j not in cols]
+
+        def full(z_rest):
+            out = list(z)
+            for j, c in zip(rest, z_rest):
+                out[j] = c
+            return tuple(out)
+
+        def fn_rest(z_rest):
+            r, scale = fn(full(z_rest))
+            return tuple(r[i] for i in rest_rows), scale
+
+        def value_and_jacobian_rest(z_rest):
+            r, scale, jac = value_and_jacobian_rows(full(z_rest))
+            return tuple(r[i] for i in rest_rows), scale, [[jac[i][j] for j in rest] for i in rest_rows]
+
+        z_rest, (i, rel, result) = newton_members(
+            fn_rest, tuple(z[j] for j in rest), rtol=rtol, max_iterations=max_iterations,
+            chord_iterations=chord_iterations, value_and_jacobian=value_and_jacobian_rest,
+        )
+        dtype = z[0].dtype
+        return full(z_rest), (i.astype(dtype), rel, result.astype(dtype))
 
     def _finish(i, z, r, scale, carry=()):
         """z with per-member (iterations, relative residual, result) and what ``factors`` asks
