@@ -9,7 +9,7 @@ repeats; final state returned, so saving costs nothing):
 - ``plain vmap, hand step``: ``jax.vmap`` of the hand-specialised step of tests/hand_vehicle.py
   (eqs. 73–74 with 88, 3×3 matrices, three Newton iterations) — the peer;
 - ``plain vmap, vj.simulate``: ``vj.ensemble(method="vmap")``, the generic engine under vmap;
-- ``generated step``: ``vj.ensemble(method="batched")``, members on the vectorised axis.
+- ``batched kernel``: ``vj.ensemble(method="batched")``, members on the vectorised axis.
 
 XLA configurations: ``default`` (no flags), ``tuned``: XLA_FLAGS
 ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000``, which lets
@@ -87,7 +87,7 @@ def measure(members_list, config):
                     jax.jit(jax.shard_map(lambda w, s=n_steps: hand(w, s), mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)),
                     jax.device_put(jnp.asarray(omegas), jax.sharding.NamedSharding(mesh, spec)),
                 ),
-                "generated step, sharded": (
+                "batched kernel, sharded": (
                     jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, mesh=mesh, throw=False).q[:, -1]),
                     states,
                 ),
@@ -98,7 +98,7 @@ def measure(members_list, config):
                     jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="vmap", throw=False).q[:, -1]),
                     states,
                 ),
-                "generated step": (
+                "batched kernel": (
                     jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="batched", throw=False).q[:, -1]),
                     states,
                 ),

@@ -1,6 +1,7 @@
 """Members per chunk of the generated batched step on CPU: ``vj.ensemble`` (1024 members × 1000
 steps, final node saved, Cayley) with the chunk size forced to 64, 256, 512 and 1024, compiled
-code only (median of 5). Decided ``members_per_chunk`` (``vi_jax/engine/_generated_step.py``): with default XLA
+code only (median of 5); the vehicle at order 1 through the generated step, not its hand
+kernel. Decided ``members_per_chunk`` (``vi_jax/engine/_generated_step.py``): with default XLA
 512 members (``LIGHT_CHUNK``) where the residual with its Jacobian has at most 1000 operations
 per member (the rigid body, the order-1 heavy top and vehicle: a thunk costs the same for 512
 members as for 64), else 64 (``CHUNK``; the order-2 scenes lose up to 2× at 256 or 512); with
@@ -26,7 +27,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import perturbed_states  # noqa: E402
+from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
 from vi_jax.discrete import composition_coefficients  # noqa: E402
 from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
 from vi_jax.lie import difference_map  # noqa: E402
@@ -56,4 +57,5 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    with generated_step_for_every_scene():
+        main()

@@ -285,13 +285,15 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
 
 
 def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
-    """Rows of the Jacobian whose entries are shared by all members (affine in the unknowns,
-    constant coefficients) and zero outside as many unknowns are solved first, exactly; Newton
-    runs on the rest. The vehicle at order 1: P_k = ℓ_ν − hℓ_n (seed 000 eq. 74) makes ν explicit,
-    so Newton sees ω alone (3 unknowns of 6), and the members still equal their own
-    ``vj.simulate`` runs (a 6×6 Newton there); at order 2 the rule couples ξ and ν: no block."""
+    """Rows of the Jacobian affine in the unknowns (coefficients shared by all members, or per
+    member but independent of the unknowns: read from the Jacobian's jaxpr) and zero outside as
+    many unknowns are solved first, exactly; Newton runs on the rest. The vehicle at order 1
+    through the generated step (``vj.ensemble`` runs its hand kernel there): P_k = ℓ_ν − hℓ_n
+    (seed 000 eq. 74) makes ν explicit, so Newton sees ω alone (3 unknowns of 6), with shared
+    and with per-member masses, and the members still equal their own ``vj.simulate`` runs (a
+    6×6 Newton there); at order 2 the rule couples ξ and ν: no block."""
     from vi_jax.discrete import composition_coefficients
-    from vi_jax.engine import _generated_step, _member_newton
+    from vi_jax.engine import _ensemble, _generated_step, _member_newton
     from vi_jax.engine._member_newton import explicit_block
     from vi_jax.lie import difference_map
 
@@ -308,17 +310,22 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
         return newton(fn, z0, **kwargs)
 
     monkeypatch.setattr(_member_newton, "newton_members", spy)
+    monkeypatch.setattr(_ensemble, "_vehicle_kernel_applies", lambda *args: False)  # the generated step
     jax.clear_caches()  # traced afresh, through the spy
     system = vj.models.UnderwaterVehicle()
     states = _states(system.initial_state(), 4)
+    masses = system.mass * (1 + 0.02 * np.arange(N_MEMBERS))
     n_steps = 40
-    sol = vj.ensemble(system, states, 0.01, n_steps, save_every=8, method="batched")
-    assert sizes and set(sizes) == {3}
-    for k in (0, N_MEMBERS - 1):
-        ref = vj.simulate(system, jax.tree.map(lambda x: x[k], states), 0.01, n_steps, save_every=8)
-        for field in ("g", "xi", "nu", "M", "P", "newton_iterations", "result"):
-            ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
-            assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * max(np.max(np.abs(theirs)), 1.0), field
+    for systems, axes in ((system, None), (vj.vary(system, mass=masses), 0)):  # shared / per-member coefficients
+        sizes.clear()
+        sol = vj.ensemble(systems, states, 0.01, n_steps, save_every=8, system_axes=axes, method="batched")
+        assert sizes and set(sizes) == {3}
+        for k in (0, N_MEMBERS - 1):
+            member = system if axes is None else jax.tree.map(lambda x: x[k], systems)
+            ref = vj.simulate(member, jax.tree.map(lambda x: x[k], states), 0.01, n_steps, save_every=8)
+            for field in ("g", "xi", "nu", "M", "P", "newton_iterations", "result"):
+                ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
+                assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * max(np.max(np.abs(theirs)), 1.0), field
     jax.clear_caches()
 
     def block_of(order):  # traced only
@@ -337,6 +344,22 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
 
     assert block_of(1) == ([3, 4, 5], [3, 4, 5])
     assert block_of(2) is None
+
+
+def test_fusion_boundaries_survive_a_jit_that_closes_over_the_scene():
+    """Under a caller's ``jit`` that closes over the scene and h, XLA sees them as constants; the
+    generated step's inputs pass an optimisation barrier, so its fusion boundaries (conditionals
+    on h == h) stay in the optimised program, as when they are arguments."""
+    system, x0, tau, order, h = _scene("rigid body, exp, order 1")
+    states = _states(x0, 9)
+    run = lambda m, s, h: vj.ensemble(m, s, h, 10, tau=tau, save_every=10, method="batched").g  # noqa: E731
+
+    def conditionals(compiled):
+        return compiled.as_text().count(" conditional(")
+
+    closed = conditionals(jax.jit(lambda s: run(system, s, h)).lower(states).compile())
+    passed = conditionals(jax.jit(run).lower(system, states, jnp.asarray(h)).compile())
+    assert closed == passed > 0
 
 
 def _quartic_top():

@@ -1,5 +1,5 @@
 """An ensemble sharded over four (forced host) CPU devices equals the single-device run, for
-the generated batched step (the vehicle, the rigid body) and the vmap path, and a concrete sharded run of another
+the batched vehicle kernel, the generated batched step and the vmap path, and a concrete sharded run of another
 length (same saved-node capacity) compiles nothing new.
 
 The device count must be fixed before JAX initialises, so the check runs in a fresh Python
@@ -80,7 +80,8 @@ def test_sharded_ensemble_equals_single_device():
         assert all(f["shapes_equal"] for k, f in case["fields"].items() if k != "newton_residual_max")
         assert case["fields"]["newton_residual_max"] <= 64 * 2.0**-52
         assert case["fields"]["newton_iterations"]["identical"] and case["fields"]["result"]["identical"]
-    # The generated step (the vehicle's, the rigid body's) is elementwise over members: sharding (7 or 6 members padded to 8 over 4 devices) cannot
+    # The batched kernels (the vehicle's, and the step generated for the rigid body) are
+    # elementwise over members: sharding (7 or 6 members padded to 8 over 4 devices) cannot
     # change a single bit of the steps; the generated step's node diagnostics run under vmap
     # (the bound below), its states and Newton statistics are bitwise equal.
     assert all(f["identical"] for k, f in report["batched-7"]["fields"].items() if k != "newton_residual_max")

@@ -9,12 +9,16 @@ tests/test_generated_step.py):
   Lagrangian (:mod:`._generated_step`), any scene, τ and order: ``vj.simulate``'s DEP step run on
   *component arrays* of shape (members,), so every operation of a step is an elementwise loop
   over the members and XLA fuses a whole Newton iteration into one vectorised loop; unknowns
-  whose equations are affine in them alone (the vehicle's ν at order 1, seed 000 eq. 74) are
-  solved before Newton (:func:`~._member_newton.explicit_block`). The plan follows the platform
-  (:func:`target_platform`): on CPU the members go through chunks of ``CHUNK`` one after another
-  (cache-sized; ``LIGHT_CHUNK`` for a light step with default XLA flags,
-  :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel
-  (H100: 50× faster than the CPU plan there; README, ``benchmarks/ensemble_gpu.py``).
+  with explicit equations are solved before Newton (:func:`~._member_newton.explicit_block`).
+  For the :class:`~vi_jax.models.UnderwaterVehicle` at ``order=1`` a hand-written kernel of the
+  paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still faster (1.01–1.23× with shared
+  parameters, 1.15–2.3× with a mass per member: ``benchmarks/explicit_block.py``), and is used
+  there. The plan
+  follows the platform (:func:`target_platform`): on CPU the members go through chunks of
+  ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
+  default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
+  vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
+  CPU plan; README, ``benchmarks/ensemble_gpu.py``).
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products
   are traced as batched dots (``batched_products``). Every 3×3 or 6×6 array keeps its tiny
   dimensions innermost, which XLA:CPU vectorises poorly.
@@ -53,9 +57,11 @@ from ..lie._small import batched_products
 from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, scan_program, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
+from ..models import UnderwaterVehicle
 from ._placement import target_platform
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
 from ._generated_step import generated_loop, generated_scan, generated_solution, members_per_chunk
+from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
 
 METHODS = ("auto", "batched", "vmap")
 
@@ -95,6 +101,10 @@ def member_converged(sol: Solution):
     return jnp.all(sol.result == SUCCESS, axis=-1)
 
 
+def _vehicle_kernel_applies(system, tau, order):
+    return isinstance(system, UnderwaterVehicle) and order == 1 and tau.name in ("cayley", "exp")
+
+
 def ensemble(
     system,
     x0: State,
@@ -119,8 +129,9 @@ def ensemble(
 
     ``system_axes`` / ``x0_axes``: 0 where the argument carries a leading member axis, None
     where it is shared, or a pytree prefix of such (as ``jax.vmap``); :func:`vary` builds
-    batched arguments. ``method``: "batched" (the generated batched step), "vmap" (``jax.vmap``
-    of the DEP program) or "auto" (batched). ``mesh``: a ``jax.sharding.Mesh``; members
+    batched arguments. ``method``: "batched" (the generated batched step; for the vehicle at
+    order 1 its hand-written kernel), "vmap" (``jax.vmap`` of the DEP program) or "auto"
+    (batched). ``mesh``: a ``jax.sharding.Mesh``; members
     are split over all its devices (padded to a multiple of their number). The other keywords
     are ``vj.simulate``'s (``checkpoint=True`` by default, on every path: reverse mode
     rematerialises, memory grows with saved nodes, not steps; ``scheme="splitting"``:
@@ -163,7 +174,9 @@ def ensemble(
             err = jnp.max(jax.vmap(G.membership_error)(jnp.reshape(x0.g, (-1,) + jnp.shape(x0.g)[-2:])))
         if not float(err) <= 1e-6:
             raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
-    batched = scheme == "dep" and method != "vmap"
+    batched = None
+    if scheme == "dep" and method != "vmap":
+        batched = "vehicle" if _vehicle_kernel_applies(system, tau_map, order) else "generated"
     if mesh is not None and not isinstance(mesh, jax.sharding.Mesh):
         raise ValueError(f"mesh: expected a jax.sharding.Mesh, got {type(mesh).__name__}")
 
@@ -212,8 +225,15 @@ def ensemble(
 
 @eqx.filter_jit
 def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
+    if batched == "generated":
+        dynamic, h = _opaque(dynamic, h)
     system, x0 = eqx.combine(dynamic, static)
-    if batched:
+    if batched == "vehicle":
+        def kernel(system, x0, n):
+            return _vehicle_batched(system, x0, h, n_saved, save_every, tau.name, rtol, max_iterations, n, checkpoint)
+
+        return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
+    if batched == "generated":
         rule, gammas = composition_coefficients(order)
         if chunk is not None:
             chunk = members_per_chunk(system, x0, axes, h, tau, rule, n_members)
@@ -241,6 +261,16 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
 
 
+def _opaque(dynamic, h):
+    """The generated step's inputs behind an optimisation barrier: under a caller's ``jit`` that
+    closes over the scene and h, XLA would fold them into the program as constants, and with h
+    constant it drops the step's fusion boundaries (conditionals on h == h): the heavy top ran
+    2.2-2.3x and the rigid body 1.4-2.8x slower so (two runs of ``python
+    benchmarks/closed_over_inputs.py``). The vehicle's hand kernel has no such boundaries and
+    gains from the constants (1.25-1.27x): it gets no barrier."""
+    return jax.lax.optimization_barrier((dynamic, h))
+
+
 def _cast(x0, dtype):
     return jax.tree.map(lambda x: jnp.asarray(x, dtype), x0)
 
@@ -261,8 +291,15 @@ def ensemble_capacity(n_saved: int) -> int:
 @eqx.filter_jit
 def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capacity, tau, order, rtol, max_iterations, batched, chunk):
     """``_run``'s DEP paths with traced ``n_saved`` (≤ ``capacity``) and ``save_every``."""
+    if batched == "generated":
+        dynamic, h = _opaque(dynamic, h)
+    if batched == "vehicle":
+        def kernel(system, x0, n):
+            return _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau.name, rtol, max_iterations, n)
+
+        return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
-    if batched:
+    if batched == "generated":
         if chunk is not None:
             chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
 

@@ -10,6 +10,12 @@ start — for the members whose refresh schedule (:func:`next_periods`) says so.
 vehicle at order 2 the Jacobian is over half of a step's operations (``python
 benchmarks/generated_step_hlo.py``); the solution is converged to the same tolerance either way.
 
+Unknowns with explicit equations (:func:`explicit_block`): rows of the Jacobian affine in as
+many unknowns, with coefficients that do not depend on the unknowns (shared by all members, or
+per member and independent of them, read from the Jacobian's jaxpr), are solved exactly first;
+Newton runs on the other unknowns with those fixed (the vehicle's ν at order 1, seed 000
+eq. 74, leaving ω to Newton as in eq. 73: ``python benchmarks/explicit_block.py``).
+
 The Jacobian's entries may be known constants or scalars shared by all members (the generated
 step's forward-mode Jacobian keeps them so: e.g. ∂P/∂ξ = 0 and ∂P/∂ν = M for a separable
 scene); the unrolled LU below folds them, so only the entries that differ per member cost
@@ -122,13 +128,46 @@ def _is_zero(entry):
     return not isinstance(entry, jax.core.Tracer) and jnp.ndim(entry) == 0 and float(entry) == 0.0
 
 
-def explicit_block(jac):
-    """(rows, columns) of a Jacobian, known at trace time, where those rows have shared (not
-    per-member) entries, so they are affine in the unknowns with constant coefficients, and are
-    zero outside those columns, as many as the rows; None if no row is so."""
-    rows = [i for i, row in enumerate(jac) if all(jnp.ndim(e) == 0 for e in row)]
-    cols = sorted({j for i in rows for j, e in enumerate(jac[i]) if not _is_zero(e)})
+def explicit_block(jac, varies=None):
+    """(rows, columns) of a Jacobian, known at trace time, where those rows are affine in the
+    unknowns with coefficients that do not depend on them, and zero outside those columns, as
+    many as the rows; None if no row is so. ``varies[i][j]``: whether entry (i, j) depends on
+    the unknowns (default: whether it is a member array, i.e. not shared by all members)."""
+    k = len(jac)
+    nonzero = [[not _is_zero(e) for e in row] for row in jac]
+    if varies is None:
+        varies = [[jnp.ndim(e) != 0 for e in row] for row in jac]
+    rows = [i for i in range(k) if not any(varies[i][j] and nonzero[i][j] for j in range(k))]
+    cols = sorted({j for i in rows for j in range(k) if nonzero[i][j]})
     return (rows, cols) if rows and len(cols) == len(rows) else None
+
+
+def _reads(jaxpr, flagged):
+    """Per output of ``jaxpr``: whether it depends on the inputs ``flagged`` (through conditionals'
+    branches and calls precisely, through other primitives conservatively)."""
+    seen = {v for v, f in zip(jaxpr.invars, flagged) if f}
+    read = lambda v: isinstance(v, jax.extend.core.Var) and v in seen  # noqa: E731
+    for eqn in jaxpr.eqns:
+        ins = [read(v) for v in eqn.invars]
+        if not any(ins):
+            continue
+        inner = eqn.params.get("jaxpr", eqn.params.get("call_jaxpr"))
+        inner = getattr(inner, "jaxpr", inner)
+        if eqn.primitive.name == "cond" and not ins[0]:
+            outs = [any(o) for o in zip(*(_reads(b.jaxpr, ins[1:]) for b in eqn.params["branches"]))]
+        elif isinstance(inner, jax.extend.core.Jaxpr) and len(inner.invars) == len(ins):
+            outs = _reads(inner, ins)
+        else:
+            outs = [True] * len(eqn.outvars)
+        seen.update(v for v, o in zip(eqn.outvars, outs) if o)
+    return [read(v) for v in jaxpr.outvars]
+
+
+def jacobian_varies(jacobian, z):
+    """Per entry of ``jacobian(z)`` (rows of entries): whether it depends on ``z``, from its jaxpr."""
+    closed = jax.make_jaxpr(lambda z: [e for row in jacobian(z) for e in row])(z)
+    flat = _reads(closed.jaxpr, [True] * len(closed.jaxpr.invars))
+    return [flat[i * len(z) : (i + 1) * len(z)] for i in range(len(z))]
 
 
 def next_periods(period, ceiling, refreshed, early, fell_back):
@@ -211,6 +250,9 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
     def solve(_, z):
         r, scale, factors, jac = first_factors(z)
         block = None if jac is None else explicit_block(jac)
+        if block is None and jac is not None and any(_is_zero(e) for row in jac for e in row):
+            # Coefficients per member (e.g. per-member masses) may still not depend on z.
+            block = explicit_block(jac, jacobian_varies(lambda z: value_and_jacobian_rows(z)[2], z))
         if block is not None and len(block[0]) < len(z):
             return solve_explicit_first(z, r, jac, *block)
         if jac is not None and all(jnp.ndim(entry) == 0 for row in jac for entry in row):
