@@ -25,6 +25,7 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
@@ -34,25 +35,36 @@ from vi_jax.lie import difference_map  # noqa: E402
 
 CASES = [("heavy_top", vj.models.HeavyTop, 0.005, 1), ("heavy_top", vj.models.HeavyTop, 0.005, 2),
          ("rigid_body", vj.models.RigidBody, 0.01, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 1),
-         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2)]
+         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2),
+         ("rigid_body, inertia per member", vj.models.RigidBody, 0.01, 2),
+         ("vehicle, mass per member", vj.models.UnderwaterVehicle, 0.01, 1)]
+
+
+def per_member(name, model, n):
+    """The scene, with one parameter per member where the case says so, and its axes."""
+    if "inertia per member" in name:
+        return vj.vary(model, inertia=model.inertia * np.linspace(0.98, 1.02, n)[:, None, None]), 0
+    if "mass per member" in name:
+        return vj.vary(model, mass=model.mass * np.linspace(0.98, 1.02, n)), 0
+    return model, None
 
 
 def main():
     n, steps = ARGS.members, ARGS.steps
     rows = []
     for name, scene, h, order in CASES:
-        model = scene()
-        states = perturbed_states(model.initial_state(), n)
-        axes = (jax.tree.map(lambda _: None, model), jax.tree.map(lambda _: 0, states))
+        model, system_axes = per_member(name, scene(), n)
+        states = perturbed_states(scene().initial_state(), n)
+        axes = (jax.tree.map(lambda _: system_axes, model), jax.tree.map(lambda _: 0, states))
         scheme = (model, states, axes, jnp.asarray(h), difference_map("cayley"), composition_coefficients(order)[0], n)
         picked, operations = _generated_step.members_per_chunk(*scheme), _generated_step.newton_operations(*scheme)
         for chunk in (64, 256, 512, 1024):
             _ensemble.members_per_chunk = lambda *args, chunk=chunk: chunk
             jax.clear_caches()  # the chunk is read at trace time
-            run = eqx.filter_jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, steps, order=order, save_every=steps, method="batched", throw=False).g[:, -1])
+            run = eqx.filter_jit(lambda m, s, h, order=order, ax=system_axes: vj.ensemble(m, s, h, steps, order=order, save_every=steps, system_axes=ax, method="batched", throw=False).g[:, -1])
             compile_s, t, _ = time_compiled(run, model, states, jnp.asarray(h), repeats=5)
             rows.append(dict(scene=name, order=order, chunk=chunk, picked=picked, newton_operations=operations, members=n, steps=steps, seconds=t, rate=n * steps / t, compile_s=compile_s))
-            print(f"{name:10s} order {order} chunk {chunk:5d}: {n * steps / t / 1e6:6.2f} M member-steps/s (compile {compile_s:.1f} s; {operations} operations per member in the residual with its Jacobian: picked {picked})", flush=True)
+            print(f"{name:30s} order {order} chunk {chunk:5d}: {n * steps / t / 1e6:6.2f} M member-steps/s (compile {compile_s:.1f} s; {operations} operations per member in the residual with its Jacobian: picked {picked})", flush=True)
     write_config_json("ensemble_chunks", ARGS.fast_loops, rows=rows)
 
 

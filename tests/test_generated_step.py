@@ -234,7 +234,7 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
 def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
     """The CPU plan's members per chunk follow the step's cost: the rigid body's residual with
     its Jacobian is light (``LIGHT_CHUNK``), the order-2 vehicle's is not (``CHUNK``), and under
-    the loop option every scene keeps ``CHUNK``. ``LIGHT_CHUNK`` + 9 members run as two equal
+    the loop option or with parameters per member every scene keeps ``CHUNK``. ``LIGHT_CHUNK`` + 9 members run as two equal
     chunks (the second padded): the members on both sides of the seam and the last one equal
     their own ``vj.simulate`` runs."""
     from vi_jax.discrete import composition_coefficients
@@ -255,6 +255,12 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "")
     assert chunk_of(vj.models.RigidBody(), 2, 0.01) == LIGHT_CHUNK
     assert chunk_of(vj.models.UnderwaterVehicle(), 2, 0.01) == CHUNK
+    body = vj.models.RigidBody()
+    per_member = vj.vary(body, inertia=body.inertia * np.linspace(0.98, 1.02, N_MEMBERS)[:, None, None])
+    states = _states(body.initial_state(), 2)
+    axes = (jax.tree.map(lambda _: 0, per_member), jax.tree.map(lambda _: 0, states))
+    rule, _ = composition_coefficients(2)
+    assert members_per_chunk(per_member, states, axes, jnp.asarray(0.01), difference_map("cayley"), rule, N_MEMBERS) == CHUNK
 
     seen, sizes = [], []
 

@@ -12,11 +12,11 @@ tests/test_generated_step.py):
   with explicit equations are solved before Newton (:func:`~._member_newton.explicit_block`).
   For the :class:`~vi_jax.models.UnderwaterVehicle` at ``order=1`` a hand-written kernel of the
   paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still faster (1.01–1.23× with shared
-  parameters, 1.15–2.3× with a mass per member: ``benchmarks/explicit_block.py``), and is used
+  parameters, 1.15–1.45× with a mass per member: ``benchmarks/explicit_block.py``), and is used
   there. The plan
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
   ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
-  default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
+  shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
   vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
   CPU plan; README, ``benchmarks/ensemble_gpu.py``).
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products

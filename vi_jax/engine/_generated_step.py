@@ -147,14 +147,17 @@ def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
 
 def members_per_chunk(system, x0, axes, h, tau, rule, n_members):
     """Members per chunk of the CPU plan: ``LIGHT_CHUNK`` where the residual with its Jacobian
-    has at most ``LIGHT_OPERATIONS`` operations per member (:func:`newton_operations`) and
-    XLA:CPU dispatches a loop's fused operations one by one (default flags), else ``CHUNK``.
+    has at most ``LIGHT_OPERATIONS`` operations per member (:func:`newton_operations`), the
+    scene's parameters are shared by the members and XLA:CPU dispatches a loop's fused
+    operations one by one (default flags), else ``CHUNK``.
     ``python benchmarks/ensemble_chunks.py``: 512 members ran 1.19-1.53x faster than 64 for the
     rigid body, the order-1 heavy top and vehicle (257-548 operations), a dispatch costing the
     same for 512 members as for 64; the order-2 heavy top and vehicle (1558, 3973) ran 0.3-1.5x
     at 256-1024, varying by up to 2.4x between runs (XLA:CPU splits their fusions over the
-    cores there); with the loop option 64 is within 3.4% of the best size for every scene."""
-    if loop_option_requested():
+    cores there); with the loop option 64 is within 3.4% of the best size for every scene; with
+    parameters per member (every coefficient a member array) 512 ran 0.61-0.67x (the rigid body,
+    the order-1 vehicle)."""
+    if loop_option_requested() or jax.tree.leaves(axes[0]):  # the loop option, or parameters per member
         return CHUNK
     return LIGHT_CHUNK if newton_operations(system, x0, axes, h, tau, rule, n_members) <= LIGHT_OPERATIONS else CHUNK
 
