@@ -263,6 +263,7 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
     assert members_per_chunk(per_member, states, axes, jnp.asarray(0.01), difference_map("cayley"), rule, N_MEMBERS) == CHUNK
 
     seen, sizes = [], []
+    real = _ensemble.in_chunks
 
     def in_chunks(dynamic, static, axes, n_members, chunk, kernel):
         seen.append(chunk)
@@ -271,9 +272,8 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
             sizes.append(n)
             return kernel(system, x0, n)
 
-        return in_chunks.__wrapped__(dynamic, static, axes, n_members, chunk, sized)
+        return real(dynamic, static, axes, n_members, chunk, sized)
 
-    in_chunks.__wrapped__ = _ensemble.in_chunks
     monkeypatch.setattr(_ensemble, "in_chunks", in_chunks)
     jax.clear_caches()  # the chunk is chosen at trace time
     system, x0, tau, order, h = _scene("rigid body, exp, order 1")

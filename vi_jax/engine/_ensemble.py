@@ -225,8 +225,6 @@ def ensemble(
 
 @eqx.filter_jit
 def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
-    if batched == "generated":
-        dynamic, h = _opaque(dynamic, h)
     system, x0 = eqx.combine(dynamic, static)
     if batched == "vehicle":
         def kernel(system, x0, n):
@@ -234,6 +232,8 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
 
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     if batched == "generated":
+        dynamic, h = _opaque(dynamic, h)
+        system, x0 = eqx.combine(dynamic, static)
         rule, gammas = composition_coefficients(order)
         if chunk is not None:
             chunk = members_per_chunk(system, x0, axes, h, tau, rule, n_members)
@@ -291,8 +291,6 @@ def ensemble_capacity(n_saved: int) -> int:
 @eqx.filter_jit
 def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capacity, tau, order, rtol, max_iterations, batched, chunk):
     """``_run``'s DEP paths with traced ``n_saved`` (≤ ``capacity``) and ``save_every``."""
-    if batched == "generated":
-        dynamic, h = _opaque(dynamic, h)
     if batched == "vehicle":
         def kernel(system, x0, n):
             return _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau.name, rtol, max_iterations, n)
@@ -300,6 +298,7 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
     if batched == "generated":
+        dynamic, h = _opaque(dynamic, h)
         if chunk is not None:
             chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
 

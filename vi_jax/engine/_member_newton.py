@@ -232,11 +232,10 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         return jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x, z0[0].dtype), jnp.shape(z0[0])), tree)
 
     def first_factors(z):
-        """The residual at z, the factors of the first Newton step, and the Jacobian if it is
-        a fresh one for every member."""
+        """The residual at z, the Jacobian if it is a fresh one for every member, and the factors
+        of the first Newton step (None: that Jacobian's, not yet factored)."""
         if not carrying:
-            r, scale, jac = value_and_jacobian_rows(z)
-            return r, scale, lu(jac), jac
+            return value_and_jacobian_rows(z) + (None,)
 
         def fresh(z):
             r, scale, jac = value_and_jacobian_rows(z)
@@ -245,16 +244,19 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         def kept(z):
             return fn(z) + (factors,)
 
-        return jax.lax.cond(jnp.any(refresh), fresh, kept, z) + (None,)
+        r, scale, first = jax.lax.cond(jnp.any(refresh), fresh, kept, z)
+        return r, scale, None, first
 
     def solve(_, z):
-        r, scale, factors, jac = first_factors(z)
-        block = None if jac is None else explicit_block(jac)
-        if block is None and jac is not None and any(_is_zero(e) for row in jac for e in row):
-            # Coefficients per member (e.g. per-member masses) may still not depend on z.
-            block = explicit_block(jac, jacobian_varies(lambda z: value_and_jacobian_rows(z)[2], z))
-        if block is not None and len(block[0]) < len(z):
-            return solve_explicit_first(z, r, jac, *block)
+        r, scale, jac, factors = first_factors(z)
+        if factors is None:  # a fresh Jacobian for every member
+            block = explicit_block(jac)
+            if block is None and any(_is_zero(e) for row in jac for e in row):
+                # Coefficients per member (e.g. per-member masses) may still not depend on z.
+                block = explicit_block(jac, jacobian_varies(lambda z: value_and_jacobian_rows(z)[2], z))
+            if block is not None and len(block[0]) < len(z):
+                return solve_explicit_first(z, r, jac, *block)
+            factors = lu(jac)
         if jac is not None and all(jnp.ndim(entry) == 0 for row in jac for entry in row):
             # No Jacobian entry is a member array, so none depends on z: fn is affine and one
             # Newton step solves it (e.g. the inverse Legendre map of a kinetic energy quadratic
@@ -304,9 +306,9 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         return _finish(*out[:4], carry=(out[4], early, fell_back))
 
     def solve_explicit_first(z, r, jac, rows, cols):
-        """Rows affine in the unknowns ``cols`` alone, with shared coefficients (e.g. the
-        additional dynamics of seed 000 eq. 74, ν explicit): solved exactly first; Newton then
-        runs on the other unknowns only, with these fixed."""
+        """Rows affine in the unknowns ``cols`` alone, with coefficients that do not depend on
+        the unknowns (e.g. the additional dynamics of seed 000 eq. 74, ν explicit): solved
+        exactly first; Newton then runs on the other unknowns only, with these fixed."""
         block = lu([[jac[i][j] for j in cols] for i in rows])
         z = list(z)
         for j, dz in zip(cols, lu_solve(block, tuple(r[i] for i in rows))):
