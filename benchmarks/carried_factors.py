@@ -8,9 +8,8 @@ residuals (``jacobian_cost``). Decided ``CARRY_COST``: the scenes whose factors 
 """
 
 import argparse
-import time
 
-from _timing import parse_args_with_fast_loops, write_config_json
+from _timing import parse_args_with_fast_loops, time_alternately, write_config_json
 
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 ARGS = parse_args_with_fast_loops(PARSER)
@@ -59,13 +58,8 @@ def main():
             states = perturbed_states(model.initial_state(), MEMBERS)
             h = jnp.asarray(h)
             runs = {carry: compiled(model, states, h, order, carry) for carry in (False, True)}
-            times = {False: [], True: []}
-            for _ in range(REPEATS):
-                for carry, (run, _, _) in runs.items():
-                    t0 = time.perf_counter()
-                    jax.block_until_ready(run(model, states, h))
-                    times[carry].append(time.perf_counter() - t0)
-            rate = {c: MEMBERS * STEPS / float(np.median(t)) for c, t in times.items()}
+            seconds = time_alternately({c: lambda run=run: run(model, states, h) for c, (run, _, _) in runs.items()}, REPEATS)
+            rate = {c: MEMBERS * STEPS / t for c, t in seconds.items()}
             diff = float(np.max(np.abs(runs[True][2] - runs[False][2])))
             cost = jacobian_cost(model, states, h, order)
             rows.append(dict(scene=name, order=order, jacobian_cost=cost, carried_by_default=cost >= _generated_step.CARRY_COST, fresh_rate=rate[False], carried_rate=rate[True], speedup=rate[True] / rate[False],

@@ -11,8 +11,9 @@ members, so XLA fuses a whole Newton iteration into one loop over the members. N
 Newton step, two chord steps, a check, masked fallback iterations while a member has not
 converged, a final correction, implicit-function gradients; on the CPU plan, where the
 Jacobian costs most, the first step may be a chord step on factors carried from an earlier step
-(:func:`make_step`, :func:`~._member_newton.next_periods`). A failed step turns the member's
-state to NaN, as ``vj.simulate`` does.
+(:func:`make_step`, :func:`~._member_newton.next_periods`). A single-stage step (orders 1, 2)
+starts Newton from the extrapolation 2ξ_k − ξ_{k−1}, as ``vj.simulate`` does
+(:func:`_extrapolated`). A failed step turns the member's state to NaN, as ``vj.simulate`` does.
 """
 
 import equinox as eqx
@@ -64,6 +65,9 @@ FIELDS = ("g", "q", "M", "P", "z")
 # the rigid body and the vehicle at order 1 (2.1), whose Jacobian costs less than carrying.
 CARRY_FACTORS = None
 CARRY_COST = 4
+# Newton's first guess in single-stage steps: the extrapolation 2ξ_k − ξ_{k−1} (True) or ξ_k
+# (False, the benchmark's switch): _extrapolated.
+PREDICT = True
 LIGHT_OPERATIONS = 1000  # members_per_chunk
 
 
@@ -259,6 +263,25 @@ def _one_step(step, gammas, h):
     return composed
 
 
+def _extrapolated(one_step):
+    """``one_step`` with Newton started from 2ξ_k − ξ_{k−1} (error O(h²)) instead of ξ_k (O(h));
+    the state carries ξ_{k−1} beside ``extra`` (NaN before the first step: the first two steps
+    start from ξ_k). ``python benchmarks/extrapolated_guess.py``: the heavy top at h = 0.01 took
+    Newton's fallback iterations in 39% of its member-steps from ξ_k and in none so (1.28x /
+    1.32x faster at orders 1 / 2; 1.44x at h = 0.02, 79% → 18%); 0.95-1.04x where no step fell
+    back (the rigid body, the heavy top at h = 0.005, the vehicle at order 2), two runs."""
+
+    def step(state):
+        carry, (extra, z_prev) = state
+        z = carry[4]
+        first = ~jnp.isfinite(z_prev[0])  # the first step (as vj.simulate: _with_previous)
+        guess = tuple(jnp.where(first, a, 2 * a - b) for a, b in zip(z, z_prev))
+        (new, extra), stats = one_step((carry[:4] + (guess,), extra))
+        return (new, (extra, tuple(jnp.where(first, a, b) for a, b in zip(new[4], z)))), stats
+
+    return step
+
+
 def _per_sub_step(extra, gammas):
     """The first ``extra`` of a composed step: factors and periods for each sub-step."""
     if extra == () or len(gammas) == 1:
@@ -280,6 +303,9 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried)
     carry0 = (carry0, _per_sub_step(step.start(carry0), gammas))
     one_step = _one_step(step, gammas, h)
+    if PREDICT and len(gammas) == 1:
+        one_step = _extrapolated(one_step)
+        carry0 = (carry0[0], (carry0[1], tuple(jnp.full_like(x, jnp.nan) for x in carry0[0][4])))
 
     def worst_step(carry, _):
         carry, worst = carry
