@@ -9,9 +9,8 @@ one process and timed alternately (median of 7 runs each).
 """
 
 import argparse
-import time
 
-from _timing import parse_args_with_fast_loops, write_config_json
+from _timing import parse_args_with_fast_loops, time_alternately, write_config_json
 
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 ARGS = parse_args_with_fast_loops(PARSER)
@@ -49,13 +48,8 @@ def main():
         for name, systems, axes in (("shared parameters", model, None),
                                     ("mass per member", vj.vary(model, mass=model.mass * np.linspace(0.98, 1.02, MEMBERS)), 0)):
             runs = {v: compiled(systems, axes, states, v) for v in ("generated, block", "generated, no block", "hand kernel")}
-            times = {v: [] for v in runs}
-            for _ in range(REPEATS):
-                for v, (run, _) in runs.items():
-                    t0 = time.perf_counter()
-                    jax.block_until_ready(run(systems, states, jnp.asarray(H)))
-                    times[v].append(time.perf_counter() - t0)
-            rate = {v: MEMBERS * STEPS / float(np.median(t)) for v, t in times.items()}
+            seconds = time_alternately({v: lambda run=run: run(systems, states, jnp.asarray(H)) for v, (run, _) in runs.items()}, REPEATS)
+            rate = {v: MEMBERS * STEPS / t for v, t in seconds.items()}
             diff = float(np.max(np.abs(runs["generated, block"][1] - runs["hand kernel"][1])))
             rows.append(dict(parameters=name, rates=rate, block_speedup=rate["generated, block"] / rate["generated, no block"],
                              block_over_kernel=rate["generated, block"] / rate["hand kernel"], max_abs_g_difference=diff))

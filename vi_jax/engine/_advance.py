@@ -65,7 +65,28 @@ def _repeat_keeping_worst(step, state, n):
 
 
 def _dtype(carry):
+    """The unknowns' dtype: z is the last leaf of a StepState, ξ_{k−1} that of (state, ξ_{k−1})."""
     return jax.tree.leaves(carry)[-1].dtype
+
+
+def no_previous(z):
+    """ξ_{k−1} before the first step: none (NaN), see :func:`extrapolation`."""
+    return jax.tree.map(lambda x: jnp.full_like(x, jnp.nan), z)
+
+
+def extrapolation(z, z_prev):
+    """Newton's first guess from the unknowns ξ_k and ξ_{k−1} (arrays, or tuples of member
+    arrays): 2ξ_k − ξ_{k−1}, or ξ_k while ξ_{k−1} is NaN (:func:`no_previous`); and ``after``,
+    the solution of the step ↦ the next step's ξ_{k−1}. The first two steps so start from the
+    last velocity: the first from the continuous one, which at large h·|ξ| differs from the
+    discrete ones by far more than a step's change."""
+    first = ~jnp.isfinite(jax.tree.leaves(z_prev)[0])
+    guess = jax.tree.map(lambda a, b: jnp.where(first, a, 2 * a - b), z, z_prev)
+
+    def after(z_new):
+        return jax.tree.map(lambda new, a: jnp.where(first, new, a), z_new, z)
+
+    return guess, after
 
 
 def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
@@ -78,8 +99,7 @@ def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
 
     def one_step(carry, _=None):
         state, z_prev = carry
-        first = ~jnp.isfinite(z_prev)  # the first step: no earlier discrete velocity
-        extrapolated = jnp.where(first, state.z, 2 * state.z - z_prev)
+        extrapolated, after = extrapolation(state.z, z_prev)
         if isinstance(gammas, TracedComposition):  # a loop of traced length over the fractions
             guess = jnp.where(gammas.count == 1, extrapolated, state.z)
             fraction_step = lambda s, i: sub_step(s, gammas.fractions[i].astype(h.dtype) * h)  # noqa: E731
@@ -90,16 +110,14 @@ def _one_step(system, tau, rule, gammas, h, rtol, max_iter):
             # A rolled loop over the composition's sub-steps: one copy of the step to compile.
             new, stats = jax.lax.scan(sub_step, state, jnp.asarray(gammas, h.dtype) * h)
             stats = jax.tree.map(lambda x: jnp.max(x, axis=0), stats)
-        return (new, jnp.where(first, new.z, state.z)), stats
+        return (new, after(new.z)), stats
 
     return one_step
 
 
 def _with_previous(state):
-    """The loop carry (state, ξ_{k−1}) before the first step: no earlier velocity (NaN), so the
-    first two steps start from the last velocity (the first from the continuous one, which may
-    differ from the discrete ones by far more than a step's change at large h·|ξ|)."""
-    return state, jnp.full_like(state.z, jnp.nan)
+    """The loop carry (state, ξ_{k−1}) before the first step."""
+    return state, no_previous(state.z)
 
 
 def _guessing(state, guess):

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..discrete._dep import StepState, StepStats, _join, _split, discrete_momenta, legendre_initial_state
 from ..solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
+from ._advance import extrapolation, no_previous
 from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
@@ -265,19 +266,17 @@ def _one_step(step, gammas, h):
 
 def _extrapolated(one_step):
     """``one_step`` with Newton started from 2ξ_k − ξ_{k−1} (error O(h²)) instead of ξ_k (O(h));
-    the state carries ξ_{k−1} beside ``extra`` (NaN before the first step: the first two steps
-    start from ξ_k). ``python benchmarks/extrapolated_guess.py``: the heavy top at h = 0.01 took
-    Newton's fallback iterations in 39% of its member-steps from ξ_k and in none so (1.28x /
-    1.32x faster at orders 1 / 2; 1.44x at h = 0.02, 79% → 18%); 0.95-1.04x where no step fell
-    back (the rigid body, the heavy top at h = 0.005, the vehicle at order 2), two runs."""
+    the state carries ξ_{k−1} beside ``extra`` (:func:`~._advance.extrapolation`, as
+    ``vj.simulate``). ``python benchmarks/extrapolated_guess.py``: the heavy top at h = 0.01
+    took Newton's fallback iterations in 39% of its member-steps from ξ_k and in none so (1.28x
+    / 1.32x faster at orders 1 / 2; 1.44x at h = 0.02, 79% → 18%); 0.95-1.04x where no step
+    fell back (the rigid body, the heavy top at h = 0.005, the vehicle at order 2), two runs."""
 
     def step(state):
         carry, (extra, z_prev) = state
-        z = carry[4]
-        first = ~jnp.isfinite(z_prev[0])  # the first step (as vj.simulate: _with_previous)
-        guess = tuple(jnp.where(first, a, 2 * a - b) for a, b in zip(z, z_prev))
+        guess, after = extrapolation(carry[4], z_prev)
         (new, extra), stats = one_step((carry[:4] + (guess,), extra))
-        return (new, (extra, tuple(jnp.where(first, a, b) for a, b in zip(new[4], z)))), stats
+        return (new, (extra, after(new[4]))), stats
 
     return step
 
@@ -305,7 +304,7 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     one_step = _one_step(step, gammas, h)
     if PREDICT and len(gammas) == 1:
         one_step = _extrapolated(one_step)
-        carry0 = (carry0[0], (carry0[1], tuple(jnp.full_like(x, jnp.nan) for x in carry0[0][4])))
+        carry0 = (carry0[0], (carry0[1], no_previous(carry0[0][4])))
 
     def worst_step(carry, _):
         carry, worst = carry

@@ -207,7 +207,8 @@ def _simulate_optimistically(system, x0, h, n_saved, save_every, *, max_iter, **
     ``python benchmarks/step_cost.py``); a run that needs
     full iterations (the heavy top from h ≈ 0.02, from 0.01 before Newton started from the
     extrapolated velocity: its first call then took 2.7 s instead of 1.6) pays the first
-    program's compile once and its steps up to that node. Each step's iteration is the full program's either way."""
+    program's compile once and its steps up to that node. Each step's iteration is the full
+    program's either way."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
 
     def run(max_iter, stop_at_failure):
