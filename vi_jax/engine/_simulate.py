@@ -205,10 +205,9 @@ def _simulate_optimistically(system, x0, h, n_saved, save_every, *, max_iter, **
     converge so; then, only in that case, the program with them. A first call compiles 0.4 s
     less and a vehicle step costs 13 % less (3.8 → 3.3 µs, default XLA, concrete call of
     ``python benchmarks/step_cost.py``); a run that needs
-    full iterations (the heavy top from h ≈ 0.02, from 0.01 before Newton started from the
-    extrapolated velocity: its first call then took 2.7 s instead of 1.6) pays the first
-    program's compile once and its steps up to that node. Each step's iteration is the full
-    program's either way."""
+    full iterations (the heavy top from h ≈ 0.02; from 0.01 before Newton started from the
+    extrapolated velocity) pays the first program's compile once and its steps up to that node.
+    Each step's iteration is the full program's either way."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
 
     def run(max_iter, stop_at_failure):
