@@ -4,9 +4,11 @@ uses to shorten the compile-bound test suite).
 
     python benchmarks/compile_time.py        # ≈ 2 min; writes benchmarks/results/compile_time.json
 
-Each configuration runs in its own process (XLA reads its flags once). Per scene: the first call
-(trace + compile + run), XLA's backend compile time summed over the process (JAX's monitoring
-events), and the median of 5 compiled runs of 20,000 steps, every node saved.
+Each configuration runs in its own process (XLA reads its flags once). Per scene: building the
+scene and its initial state (``setup_s``, the first time in the process: eager operations compile
+one small program each), the first call (trace + compile + run), XLA's backend compile time
+summed over the process (JAX's monitoring events), and the median of 5 compiled runs of 20,000
+steps, every node saved.
 """
 
 import json
@@ -36,8 +38,10 @@ def child():
     )
     rows = []
     for scene, order in CASES:
+        start = time.perf_counter()
         model = getattr(vj.models, scene)()
-        x0 = model.initial_state()
+        x0 = jax.block_until_ready(model.initial_state())
+        setup = time.perf_counter() - start
         run = lambda: jax.block_until_ready(vj.simulate(model, x0, 0.01, N_STEPS, order=order).q)  # noqa: E731
         start = time.perf_counter()
         run()
@@ -47,7 +51,7 @@ def child():
             start = time.perf_counter()
             run()
             samples.append(time.perf_counter() - start)
-        rows.append(dict(scene=scene, order=order, first_call_s=first, us_per_step=statistics.median(samples) / N_STEPS * 1e6))
+        rows.append(dict(scene=scene, order=order, setup_s=setup, first_call_s=first, us_per_step=statistics.median(samples) / N_STEPS * 1e6))
     print("JSON " + json.dumps(dict(rows=rows, backend_compile_s=sum(compile_s))))
 
 
@@ -63,7 +67,8 @@ def main():
         results[name] = json.loads(next(line for line in run.stdout.splitlines() if line.startswith("JSON "))[5:])
         print(f"{name}: backend compile {results[name]['backend_compile_s']:.1f} s")
         for row in results[name]["rows"]:
-            print(f"  {row['scene']:17s} order {row['order']}: first call {row['first_call_s']:5.2f} s, {row['us_per_step']:6.2f} us/step")
+            print(f"  {row['scene']:17s} order {row['order']}: setup {row['setup_s']:4.2f} s, first call {row['first_call_s']:5.2f} s, "
+                  f"{row['us_per_step']:6.2f} us/step")
     path = Path(__file__).resolve().parent / "results" / "compile_time.json"
     path.write_text(json.dumps(dict(n_steps=N_STEPS, configs=results), indent=2))
     print(f"wrote {path}")

@@ -1,12 +1,15 @@
-"""A concrete ``vj.simulate`` runs first the program without Newton's full iterations (one Newton
-step and the chord steps), and the program with them only when a step needs them: either way
-every step equals the same step of the traced program, which always holds them."""
+"""A concrete ``vj.simulate`` (and ``vj.ensemble`` through the generated step) runs first the
+program without Newton's full iterations (one Newton step and the chord steps), and the program
+with them only when a step needs them: either way every step equals the same step of the traced
+program, which always holds them."""
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
 
 import vi_jax as vj
+from vi_jax.engine import _ensemble
 
 EPS = np.finfo(np.float64).eps
 
@@ -43,3 +46,33 @@ def test_a_failing_run_reports_the_full_programs_failure():
     assert np.all(result[:12] == vj.solvers.SUCCESS) and result[12] == vj.solvers.MAX_ITERATIONS
     np.testing.assert_array_equal(result, np.asarray(traced.result))
     np.testing.assert_array_equal(np.asarray(concrete.newton_iterations), np.asarray(traced.newton_iterations))
+
+
+@pytest.mark.parametrize("h, needs_full_iterations", [(0.005, False), (0.02, True)])
+def test_concrete_ensemble_equals_the_traced_ensemble(h, needs_full_iterations, monkeypatch):
+    """The same plan for ``vj.ensemble``'s generated step (four heavy tops): the program without
+    full iterations runs first (stopping at the first node where some member needs them), the
+    full one only then; the members equal the traced run's (full iterations compiled)."""
+    model = vj.models.HeavyTop()
+    x0 = model.initial_state()
+    states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.1 * np.random.default_rng(3).normal(size=(4, 3)))
+    n_steps = 100
+    programs, run_loop = [], _ensemble._run_loop
+
+    def spy(*args, **options):
+        programs.append((options["max_iterations"], options.get("stop_at_failure", False)))
+        return run_loop(*args, **options)
+
+    monkeypatch.setattr(_ensemble, "_run_loop", spy)
+    concrete = vj.ensemble(model, states, h, n_steps, method="batched")
+    traced = eqx.filter_jit(lambda s: vj.ensemble(model, s, h, n_steps, method="batched"))(states)
+    common = 1 + vj.solvers.CHORD_ITERATIONS
+    assert programs == [(common, True)] + ([(20, False)] if needs_full_iterations else [])
+    iterations = np.asarray(concrete.newton_iterations)
+    assert (iterations.max() > common) == needs_full_iterations
+    np.testing.assert_array_equal(iterations, np.asarray(traced.newton_iterations))
+    assert bool(np.all(vj.member_converged(concrete)))
+    bound = 4 * 64 * EPS * np.sqrt(n_steps)
+    for field in ("g", "xi", "M", "energy"):
+        ours, theirs = np.asarray(getattr(concrete, field)), np.asarray(getattr(traced, field))
+        assert np.max(np.abs(ours - theirs)) <= bound * max(np.max(np.abs(theirs)), 1.0), field

@@ -1,6 +1,5 @@
 """Execute the notebooks in quick mode so they never rot."""
 
-import os
 from pathlib import Path
 
 import nbformat

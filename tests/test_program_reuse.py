@@ -2,15 +2,36 @@
 up to 1024 saved nodes: the step counts are traced integers, the saved-node buffer has a
 minimum capacity (a new program costs seconds of compilation, ``python benchmarks/capacity.py``);
 orders 2, 4 and 6 share one program (their sub-step fractions are traced). The beam's time
-march likewise."""
+march likewise. Building a scene compiles almost nothing, and Newton traces a step's residual once."""
 
 import logging
+import subprocess
+import sys
 
 import equinox as eqx
 import jax
 import numpy as np
 
 import vi_jax as vj
+from vi_jax.solvers import newton_root
+
+# In a fresh process: the programs that building each scene and its initial state asks for (each
+# eager operation on concrete values is one, 20–50 ms to compile on a 2-core machine).
+_SETUP_PROGRAMS = """
+import logging, jax
+jax.config.update("jax_enable_x64", True)
+import vi_jax as vj
+compiled = []
+handler = logging.Handler()
+handler.emit = lambda record: compiled.append(record.getMessage()) if record.getMessage().startswith("Compiling ") else None
+logging.getLogger("jax").addHandler(handler)
+logging.getLogger("jax").setLevel(logging.DEBUG)
+with jax.log_compiles():
+    for scene in (vj.models.UnderwaterVehicle, vj.models.HeavyTop, vj.models.RigidBody):
+        jax.block_until_ready(scene().initial_state())
+        print(scene.__name__, len(compiled))
+        compiled.clear()
+"""
 
 
 def test_runs_of_different_lengths_share_one_program(caplog):
@@ -115,3 +136,32 @@ def test_splitting_runs_of_different_lengths_share_one_program(caplog):
     compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_run_loop)")]
     assert compiled == []
     assert other.g.shape[0] == 101
+
+
+def test_building_a_scene_compiles_few_programs():
+    """Validation and default initial states run in NumPy or in one jitted function, not op by op
+    (43 programs, 0.8–1.2 s, for the vehicle before): at most 10 programs per scene."""
+    out = subprocess.run([sys.executable, "-c", _SETUP_PROGRAMS], capture_output=True, text=True, check=True).stdout
+    counts = {name: int(n) for name, n in (line.split() for line in out.splitlines())}
+    assert set(counts) == {"UnderwaterVehicle", "HeavyTop", "RigidBody"}
+    assert all(n <= 10 for n in counts.values()), counts
+
+
+def test_newton_traces_the_residual_once():
+    """The Jacobian, the chord steps, the full iterations and the implicit-function gradient
+    replay the residual's jaxpr (Python model code runs once per step traced)."""
+    calls = []
+
+    def root(z0):
+        def fn(z):  # a new closure per step, as the engine's
+            calls.append(1)
+            return z**3 - 8.0, 8.0
+
+        return newton_root(fn, z0, rtol=1e-13, max_iterations=20)[0]
+
+    z = jax.jit(root)(np.array([1.8, 2.5]))  # far enough from 2 for the full iterations
+    np.testing.assert_allclose(z, [2.0, 2.0], rtol=1e-14)
+    assert len(calls) == 1
+    calls.clear()
+    np.testing.assert_allclose(jax.jacfwd(lambda a: root(a * np.array([1.8, 2.5])).sum())(1.0), 0.0, atol=1e-12)
+    assert len(calls) == 1

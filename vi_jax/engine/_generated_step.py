@@ -322,11 +322,12 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
     return state0, _unpack(layout, carry0[0], saved, stats)
 
 
-def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True):
+def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True,
+                   stop_at_failure=False):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
-    run length."""
+    run length (``stop_at_failure``: :func:`loop_member_nodes`)."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
-    saved, stats = loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype)
+    saved, stats = loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype, stop_at_failure)
     return state0, _unpack(layout, carry0[0], saved, stats)
 
 

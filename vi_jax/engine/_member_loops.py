@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 
 from .._saved_nodes import SAVE_BLOCK, rematerialised_steps, scan_saved_nodes
+from ..solvers import SUCCESS
 
 
 def no_stats(n_members, dtype):
@@ -40,9 +41,11 @@ def scan_member_nodes(worst_step, carry0, rows, n_saved, save_every, checkpoint,
     return scan_saved_nodes(node, carry0, n_saved, checkpoint)[1]
 
 
-def loop_member_nodes(worst_step, carry0, rows, n_saved, save_every, capacity, n_members, dtype):
+def loop_member_nodes(worst_step, carry0, rows, n_saved, save_every, capacity, n_members, dtype, stop_at_failure=False):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
-    run length. Rows past ``n_saved`` repeat the initial state with zero statistics."""
+    run length. Rows past ``n_saved`` repeat the initial state with zero statistics.
+    ``stop_at_failure``: no node after the first where some member's step did not succeed (the
+    rows past it then repeat the initial state too)."""
     first, none = _pack(rows, carry0, no_stats(n_members, dtype), dtype)
 
     def node(k, loop_carry):
@@ -52,5 +55,16 @@ def loop_member_nodes(worst_step, carry0, rows, n_saved, save_every, capacity, n
         return carry[0], saved.at[k].set(row), stats.at[k].set(row_stats)
 
     buffers = (jnp.broadcast_to(first, (capacity,) + first.shape), jnp.broadcast_to(none, (capacity,) + none.shape))
-    _, saved, stats = jax.lax.fori_loop(0, n_saved, node, (carry0, *buffers))
+    if not stop_at_failure:
+        _, saved, stats = jax.lax.fori_loop(0, n_saved, node, (carry0, *buffers))
+        return saved, stats
+
+    def going(loop_carry):
+        k, _, _, stats = loop_carry
+        return (k < n_saved) & ((k == 0) | jnp.all(stats[jnp.maximum(k - 1, 0), 2] == SUCCESS))
+
+    def next_node(loop_carry):
+        return (loop_carry[0] + 1, *node(loop_carry[0], loop_carry[1:]))
+
+    _, _, saved, stats = jax.lax.while_loop(going, next_node, (jnp.asarray(0, jnp.int32), carry0, *buffers))
     return saved, stats

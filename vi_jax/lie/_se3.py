@@ -3,6 +3,7 @@
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._base import AbstractMatrixGroup
 from ._small import dot, matmul, matvec
@@ -41,8 +42,8 @@ class SE3(AbstractMatrixGroup):
 
     def membership_error(self, g):
         R = g[:3, :3]
-        bottom = g[3] - jnp.array([0, 0, 0, 1], g.dtype)
-        orthogonality = jnp.sqrt(jnp.sum((R.T @ R - jnp.eye(3, dtype=g.dtype)) ** 2) + jnp.sum(bottom**2))
+        bottom = g[3] - np.array([0, 0, 0, 1], g.dtype)
+        orthogonality = jnp.sqrt(jnp.sum((R.T @ R - np.eye(3, dtype=g.dtype)) ** 2) + jnp.sum(bottom**2))
         return orthogonality + jnp.abs(jnp.linalg.det(R) - 1)
 
     def inverse(self, g):

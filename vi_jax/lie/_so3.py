@@ -1,6 +1,7 @@
 """SO(3) with closed-form Cayley and exponential maps (seed 000 §4, eqs. 81, 91–93)."""
 
 import jax.numpy as jnp
+import numpy as np
 
 from . import _series
 from ._base import AbstractMatrixGroup
@@ -107,7 +108,7 @@ class SO3(AbstractMatrixGroup):
 
     def membership_error(self, g):
         """‖gᵀg − I‖_F + |det g − 1| (the determinant rules out reflections)."""
-        return jnp.linalg.norm(g.T @ g - jnp.eye(3, dtype=g.dtype)) + jnp.abs(jnp.linalg.det(g) - 1)
+        return jnp.linalg.norm(g.T @ g - np.eye(3, dtype=g.dtype)) + jnp.abs(jnp.linalg.det(g) - 1)
 
     def inverse(self, g):
         return g.T

@@ -47,7 +47,7 @@ class SOn(AbstractMatrixGroup):
 
     def membership_error(self, g):
         """‖gᵀg − I‖_F + |det g − 1| (the determinant rules out reflections)."""
-        return jnp.linalg.norm(g.T @ g - jnp.eye(self.n, dtype=g.dtype)) + jnp.abs(jnp.linalg.det(g) - 1)
+        return jnp.linalg.norm(g.T @ g - np.eye(self.n, dtype=g.dtype)) + jnp.abs(jnp.linalg.det(g) - 1)
 
     def inverse(self, g):
         return g.T
@@ -126,7 +126,7 @@ class Rn(AbstractMatrixGroup):
         return X[: self.n, self.n]
 
     def membership_error(self, g):
-        eye = jnp.eye(self.n + 1, dtype=g.dtype)
+        eye = np.eye(self.n + 1, dtype=g.dtype)
         return jnp.linalg.norm((g - eye).at[: self.n, self.n].set(0))
 
     def inverse(self, g):

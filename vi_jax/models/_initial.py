@@ -1,16 +1,17 @@
-"""Initial attitudes from Euler angles."""
+"""Initial attitudes from Euler angles (NumPy: built once from constants, with no XLA program
+to compile per operation)."""
 
-import jax.numpy as jnp
+import numpy as np
 
 
 def _rz(t):
-    c, s = jnp.cos(t), jnp.sin(t)
-    return jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _rx(t):
-    c, s = jnp.cos(t), jnp.sin(t)
-    return jnp.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def rotation_from_zxz(psi, theta, phi):
@@ -23,10 +24,10 @@ def zxz_body_rates(angles, rates):
     ω = (ψ̇ sinθ sinφ + θ̇ cosφ, ψ̇ sinθ cosφ − θ̇ sinφ, ψ̇ cosθ + φ̇)."""
     _, theta, phi = angles
     dpsi, dtheta, dphi = rates
-    return jnp.array(
+    return np.array(
         [
-            dpsi * jnp.sin(theta) * jnp.sin(phi) + dtheta * jnp.cos(phi),
-            dpsi * jnp.sin(theta) * jnp.cos(phi) - dtheta * jnp.sin(phi),
-            dpsi * jnp.cos(theta) + dphi,
+            dpsi * np.sin(theta) * np.sin(phi) + dtheta * np.cos(phi),
+            dpsi * np.sin(theta) * np.cos(phi) - dtheta * np.sin(phi),
+            dpsi * np.cos(theta) + dphi,
         ]
     )

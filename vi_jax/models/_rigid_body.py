@@ -12,6 +12,7 @@ A = χ/|χ|. A symmetric J = (α/2, …, α/2, 1 − α/2) with χ ∥ e_n is th
 for n = 3, (x₀₁, x₀₂, x₁₂) = (x₃, −x₂, x₁) of the SO3 convention).
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,6 +63,7 @@ def _inertia(group, inertia, mass_matrix, default):
     return val.check_spd(name, arr)
 
 
+@eqx.filter_jit  # one program to compile, not one per operation (built from constants)
 def embed_so3(group, R=None, omega=None):
     """An SO(3) attitude R and rotation vector ω (cross-product convention) acting on the last
     three axes of R^n, as (g, ξ) of ``group``; identity and zero where not given."""
@@ -139,7 +141,7 @@ class HeavyTop(AbstractSystem):
             self.inertia = _inertia(G, None, np.r_[np.full(n - 1, 0.2), 0.8], None)
         self.mass = val.check_positive_scalar("mass", jnp.asarray(mass, float))
         self.gravity = val.check_positive_scalar("gravity", jnp.asarray(gravity, float))
-        chi = jnp.zeros(n).at[-1].set(0.5) if center_of_mass is None else jnp.asarray(center_of_mass, float)
+        chi = np.r_[np.zeros(n - 1), 0.5] if center_of_mass is None else jnp.asarray(center_of_mass, float)
         self.center_of_mass = val.check_finite("center_of_mass", val.as_array("center_of_mass", chi, (n,)))
 
     @property

@@ -48,7 +48,7 @@ class UnderwaterVehicle(AbstractSystem):
         val.as_array("inertia", self.inertia, (3, 3))
         val.check_spd("inertia", self.inertia)
         if val.is_concrete(self.added_mass):
-            val.check_spd("added_mass + mass·I", self.added_mass + self.mass * jnp.eye(3))
+            val.check_spd("added_mass + mass·I", np.asarray(self.added_mass) + np.asarray(self.mass) * np.eye(3))
         self.buoyancy = val.check_finite("buoyancy", jnp.asarray(buoyancy, float))
         val.as_array("buoyancy", self.buoyancy, ())
         self.gravity = val.check_positive_scalar("gravity", jnp.asarray(gravity, float))
@@ -83,8 +83,8 @@ class UnderwaterVehicle(AbstractSystem):
         v₀ = (0.1, 0.1, 0.8) m/s in the space frame. Keywords override each piece."""
         angles = (2 * jnp.pi, 0.0, 2 * jnp.pi)
         rates = (jnp.pi / 18, jnp.pi / 18, jnp.pi / 18)
-        R0 = rotation_from_zxz(*angles) if R0 is None else val.as_array("R0", R0, (3, 3))
-        omega0 = zxz_body_rates(angles, rates) if omega0 is None else val.as_array("omega0", omega0, (3,))
+        R0 = jnp.asarray(rotation_from_zxz(*angles)) if R0 is None else val.as_array("R0", R0, (3, 3))
+        omega0 = jnp.asarray(zxz_body_rates(angles, rates)) if omega0 is None else val.as_array("omega0", omega0, (3,))
         q0 = jnp.array([0.0, 0.0, 1.0]) if q0 is None else val.as_array("q0", q0, (3,))
         v0 = jnp.array([0.1, 0.1, 0.8]) if v0 is None else val.as_array("v0", v0, (3,))
         for name, value in (("R0", R0), ("omega0", omega0), ("q0", q0), ("v0", v0)):
