@@ -305,9 +305,16 @@ def _optimistically(program, max_iterations, applies):
     if not applies or max_iterations <= common:
         return program(max_iterations, False)
     sol = program(common, True)
-    if np.any(np.asarray(sol.result) != SUCCESS):
+    if _any_failed(sol.result):
         sol = program(max_iterations, False)
     return sol
+
+
+@jax.jit
+def _any_failed(result):
+    """Whether some member's step failed, reduced on the device (a GPU ensemble's result codes
+    can be over 100 MB: no trip through the host)."""
+    return jnp.any(result != SUCCESS)
 
 
 @eqx.filter_jit
