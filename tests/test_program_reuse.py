@@ -140,11 +140,12 @@ def test_splitting_runs_of_different_lengths_share_one_program(caplog):
 
 def test_building_a_scene_compiles_few_programs():
     """Validation and default initial states run in NumPy or in one jitted function, not op by op
-    (43 programs, 0.8–1.2 s, for the vehicle before): at most 10 programs per scene."""
+    (43 programs, 0.8–1.2 s, for the vehicle before; 8 now, most of them device transfers): at
+    most 16 programs per scene, room for another JAX version's transfers, none for op by op."""
     out = subprocess.run([sys.executable, "-c", _SETUP_PROGRAMS], capture_output=True, text=True, check=True).stdout
     counts = {name: int(n) for name, n in (line.split() for line in out.splitlines())}
     assert set(counts) == {"UnderwaterVehicle", "HeavyTop", "RigidBody"}
-    assert all(n <= 10 for n in counts.values()), counts
+    assert all(n <= 16 for n in counts.values()), counts
 
 
 def test_newton_traces_the_residual_once():
