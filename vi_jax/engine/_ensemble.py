@@ -138,7 +138,9 @@ def ensemble(
     ``jax.vmap`` of the explicit splitting);
     ``throw=True`` raises :class:`~vi_jax.NewtonFailure` naming the failed members. On concrete
     inputs (no ``mesh``) the DEP paths take the step counts as traced integers: one compiled
-    program per saved-node capacity (the power of two ≥ the saved nodes), not per ``n_steps``. Members
+    program per saved-node capacity (the power of two ≥ the saved nodes), not per ``n_steps``;
+    through the generated step, a program without Newton's full iterations runs first and the
+    full one only if some member needs them (:func:`_optimistically`, as ``vj.simulate``). Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them. ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
