@@ -1,7 +1,7 @@
 """The first concrete call of ``vj.ensemble`` through the generated step (64 members, 1000
 steps, final node saved, Cayley, order 2): with the optimistic plan (a program without Newton's
 full iterations first, the full program only where some member needed them:
-``_ensemble._optimistically``) and with the full program alone. Each call runs in a fresh
+``vi_jax.engine._simulate.optimistically``) and with the full program alone. Each call runs in a fresh
 process (nothing compiled before it), the two plans alternately, three times each; the median
 first call (trace + compile + run), its backend compile time (JAX's monitoring events) and the
 second call are reported. The heavy top at h = 0.02 needs the full iterations (a run that pays
@@ -34,7 +34,7 @@ import vi_jax as vj
 from vi_jax.engine import _ensemble
 scene, h, plan, members, steps, order = sys.argv[1], float(sys.argv[2]), sys.argv[3], *map(int, sys.argv[4:7])
 if plan == "full program only":
-    _ensemble._optimistically = lambda program, max_iterations, applies: program(max_iterations, False)
+    _ensemble.optimistically = lambda program, max_iterations, failed: program(max_iterations, False)
 model = getattr(vj.models, scene)()
 x0 = model.initial_state()
 states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(members, 3)))

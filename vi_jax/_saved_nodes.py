@@ -44,6 +44,24 @@ def rematerialised_steps(steps, carry, n):
     return steps(carry, rest) if rest else carry
 
 
+def loop_saved_nodes(node, carry, n_nodes, row_succeeded=None):
+    """``node(k, carry) -> carry`` for k = 0 … ``n_nodes`` − 1 (traced), the carry holding the
+    saved-node buffers. ``row_succeeded(carry, k)``: whether every step of node k succeeded; with
+    it, no node runs after the first that did not (a concrete run's first program)."""
+    if row_succeeded is None:
+        return jax.lax.fori_loop(0, n_nodes, node, carry)
+
+    def going(loop_carry):
+        k, carry = loop_carry
+        return (k < n_nodes) & ((k == 0) | row_succeeded(carry, jnp.maximum(k - 1, 0)))
+
+    def next_node(loop_carry):
+        k, carry = loop_carry
+        return k + 1, node(k, carry)
+
+    return jax.lax.while_loop(going, next_node, (jnp.asarray(0, jnp.int32), carry))[1]
+
+
 MIN_CAPACITY = 1024
 
 

@@ -95,14 +95,16 @@ def check_choice(name, value, choices):
     return value
 
 
-# One compiled program per group and shape: op by op, the check compiles a dozen (0.3–0.5 s).
-_membership_error = eqx.filter_jit(lambda group, g: group.membership_error(g))
+@eqx.filter_jit  # one program per group and shape: op by op, a check compiles a dozen (0.3–0.5 s)
+def membership_error(group, g):
+    """The largest membership error of ``g``: a group element, or a batch of them (leading axes)."""
+    return jnp.max(jax.vmap(group.membership_error)(jnp.reshape(g, (-1,) + jnp.shape(g)[-2:])))
 
 
 @_eager
 def check_on_group(name, group, g, tol=1e-6):
     if is_concrete(g):
-        err = float(_membership_error(group, g))
+        err = float(membership_error(group, g))
         if not err <= tol:
             raise ValueError(
                 f"{name}: expected an element of {type(group).__name__} (membership error ≤ {tol:g}), "

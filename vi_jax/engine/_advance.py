@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._saved_nodes import SAVE_BLOCK, rematerialised_steps, scan_saved_nodes
+from .._saved_nodes import SAVE_BLOCK, loop_saved_nodes, rematerialised_steps, scan_saved_nodes
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
 
@@ -179,16 +179,6 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
         put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k, 0)  # noqa: E731
         return carry, jax.tree.map(put, saved, carry[0]), jax.tree.map(put, stats, worst)
 
-    if not stop_at_failure:
-        (state, _), saved, stats = jax.lax.fori_loop(0, n_nodes, node, (_with_previous(state), saved, stats))
-        return state, saved, stats
-
-    def going(carry):
-        k, _, _, stats = carry
-        return (k < n_nodes) & ((k == 0) | (stats.result[jnp.maximum(k - 1, 0)] == SUCCESS))
-
-    def next_node(carry):
-        return (carry[0] + 1, *node(carry[0], carry[1:]))
-
-    _, (state, _), saved, stats = jax.lax.while_loop(going, next_node, (jnp.asarray(0, jnp.int32), _with_previous(state), saved, stats))
+    succeeded = (lambda carry, k: carry[2].result[k] == SUCCESS) if stop_at_failure else None
+    (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes, succeeded)
     return state, saved, stats

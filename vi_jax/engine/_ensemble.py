@@ -54,8 +54,8 @@ from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
 from ..discrete._composition import composition_coefficients
 from ..lie._small import batched_products
-from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, scan_program, simulate, validate_scheme
-from ..solvers import CHORD_ITERATIONS, RESULT_MESSAGES, SUCCESS
+from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, optimistically, scan_program, simulate, validate_scheme
+from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
@@ -140,7 +140,7 @@ def ensemble(
     inputs (no ``mesh``) the DEP paths take the step counts as traced integers: one compiled
     program per saved-node capacity (the power of two ≥ the saved nodes), not per ``n_steps``;
     through the generated step, a program without Newton's full iterations runs first and the
-    full one only if some member needs them (:func:`_optimistically`, as ``vj.simulate``). Members
+    full one only if some member needs them (as ``vj.simulate``: :func:`~._simulate.optimistically`). Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them. ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
@@ -173,7 +173,7 @@ def ensemble(
     if val.is_concrete(x0.g):
         G = system.group
         with jax.ensure_compile_time_eval():
-            err = jnp.max(jax.vmap(G.membership_error)(jnp.reshape(x0.g, (-1,) + jnp.shape(x0.g)[-2:])))
+            err = val.membership_error(G, x0.g)
         if not float(err) <= 1e-6:
             raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
     batched = None
@@ -208,10 +208,13 @@ def ensemble(
             loop_options["capacity"] = capacity = ensemble_capacity(n_saved)
             if mesh is None:
                 def program(max_iterations, stop_at_failure):
-                    options = dict(loop_options, max_iterations=max_iterations, stop_at_failure=stop_at_failure)
-                    return _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **options)
+                    plan = dict(loop_options, max_iterations=max_iterations, stop_at_failure=stop_at_failure)
+                    return _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **plan)
 
-                sol = _optimistically(program, options["max_iterations"], batched == "generated")
+                if batched == "generated":  # vj.simulate's plan (figures: _any_failed)
+                    sol = optimistically(program, options["max_iterations"], _any_failed)
+                else:
+                    sol = program(options["max_iterations"], False)
             else:
                 sol = _run_sharded(dynamic, static, axes, h, mesh, n_members, loop_options, counts)
             return sol if capacity == n_saved else _first_nodes(sol, n_saved + 1)
@@ -294,29 +297,14 @@ def ensemble_capacity(n_saved: int) -> int:
     return 1 << max(n_saved - 1, 0).bit_length()
 
 
-def _optimistically(program, max_iterations, applies):
-    """``vj.simulate``'s plan for a concrete call, for the generated step (``applies``): first
-    the program without Newton's full iterations (one Newton and the chord steps), stopping at
-    the first node where some member's step did not converge so; then, only in that case, the
-    program with them. ``program(max_iterations, stop_at_failure)`` runs one. Each member's
-    iteration is the full program's either way. ``python benchmarks/ensemble_first_call.py``
-    (order 2, 64 members): a first call took 0.68x (vehicle) and 0.75x (heavy top, h = 0.01) the
-    full program's alone; a run that needs the full iterations pays both programs (heavy top,
-    h = 0.02: 1.82x)."""
-    common = 1 + CHORD_ITERATIONS
-    if not applies or max_iterations <= common:
-        return program(max_iterations, False)
-    sol = program(common, True)
-    if _any_failed(sol.result):
-        sol = program(max_iterations, False)
-    return sol
-
-
 @jax.jit
-def _any_failed(result):
+def _any_failed(sol):
     """Whether some member's step failed, reduced on the device (a GPU ensemble's result codes
-    can be over 100 MB: no trip through the host)."""
-    return jnp.any(result != SUCCESS)
+    can be over 100 MB: no trip through the host). ``python benchmarks/ensemble_first_call.py``
+    (order 2, 64 members): the optimistic plan's first call took 0.68x (vehicle) and 0.75x (heavy
+    top, h = 0.01) the full program's alone; a run that needs the full iterations pays both
+    programs (heavy top, h = 0.02: 1.82x)."""
+    return jnp.any(sol.result != SUCCESS)
 
 
 @eqx.filter_jit

@@ -5,7 +5,7 @@ since the last saved node."""
 import jax
 import jax.numpy as jnp
 
-from .._saved_nodes import SAVE_BLOCK, rematerialised_steps, scan_saved_nodes
+from .._saved_nodes import SAVE_BLOCK, loop_saved_nodes, rematerialised_steps, scan_saved_nodes
 from ..solvers import SUCCESS
 
 
@@ -55,16 +55,6 @@ def loop_member_nodes(worst_step, carry0, rows, n_saved, save_every, capacity, n
         return carry[0], saved.at[k].set(row), stats.at[k].set(row_stats)
 
     buffers = (jnp.broadcast_to(first, (capacity,) + first.shape), jnp.broadcast_to(none, (capacity,) + none.shape))
-    if not stop_at_failure:
-        _, saved, stats = jax.lax.fori_loop(0, n_saved, node, (carry0, *buffers))
-        return saved, stats
-
-    def going(loop_carry):
-        k, _, _, stats = loop_carry
-        return (k < n_saved) & ((k == 0) | jnp.all(stats[jnp.maximum(k - 1, 0), 2] == SUCCESS))
-
-    def next_node(loop_carry):
-        return (loop_carry[0] + 1, *node(loop_carry[0], loop_carry[1:]))
-
-    _, _, saved, stats = jax.lax.while_loop(going, next_node, (jnp.asarray(0, jnp.int32), carry0, *buffers))
+    succeeded = (lambda loop_carry, k: jnp.all(loop_carry[2][k, 2] == SUCCESS)) if stop_at_failure else None
+    _, saved, stats = loop_saved_nodes(node, (carry0, *buffers), n_saved, succeeded)
     return saved, stats

@@ -215,13 +215,18 @@ def _simulate_optimistically(system, x0, h, n_saved, save_every, *, max_iter, **
                              max_iter=max_iter, stop_at_failure=stop_at_failure, **options)
         return first_rows(sol, n_saved + 1)
 
+    return optimistically(run, max_iter, lambda sol: np.any(np.asarray(sol.result) != SUCCESS))
+
+
+def optimistically(program, max_iterations, failed):
+    """``program(max_iterations, stop_at_failure)`` (a concrete run's looped program) first
+    without Newton's full iterations, stopping at the first failed node, then, only if
+    ``failed(solution)``, with them (``vj.simulate``; ``vj.ensemble``'s generated step)."""
     common = 1 + CHORD_ITERATIONS
-    if max_iter <= common:
-        return run(max_iter, False)
-    sol = run(common, True)
-    if np.any(np.asarray(sol.result) != SUCCESS):
-        sol = run(max_iter, False)
-    return sol
+    if max_iterations <= common:
+        return program(max_iterations, False)
+    sol = program(common, True)
+    return program(max_iterations, False) if failed(sol) else sol
 
 
 def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, gammas, rtol, max_iter):
