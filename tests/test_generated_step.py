@@ -264,7 +264,7 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
     chunks (the second padded): the members on both sides of the seam and the last one equal
     their own ``vj.simulate`` runs."""
     from vi_jax.discrete import composition_coefficients
-    from vi_jax.engine import _ensemble
+    from vi_jax.engine import _ensemble, _member_groups
     from vi_jax.engine._generated_step import members_per_chunk
     from vi_jax.engine._member_split import CHUNK, LIGHT_CHUNK
     from vi_jax.lie import difference_map
@@ -301,6 +301,7 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
         return real(dynamic, static, axes, n_members, chunk, sized)
 
     monkeypatch.setattr(_ensemble, "in_chunks", in_chunks)
+    monkeypatch.setattr(_member_groups, "cores", lambda: 1)  # one program for all members, on any machine
     jax.clear_caches()  # the chunk is chosen at trace time
     system, x0, tau, order, h = _scene("rigid body, exp, order 1")
     n, n_steps, save_every = LIGHT_CHUNK + 9, 40, 8

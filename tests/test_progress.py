@@ -35,7 +35,7 @@ def test_ensemble_progress_run_equals_the_plain_run(method, monkeypatch, capsys)
     against plain runs of members 0–2 and 2–4 (the same program: three members)."""
     from vi_jax.engine import _ensemble
 
-    monkeypatch.setattr(_ensemble, "PROGRESS_GROUP", 2)
+    monkeypatch.setattr(_ensemble, "MIN_GROUP", 2)
     rng = np.random.default_rng(0)
     if method == "batched":  # the vehicle kernel
         model, field = vj.models.UnderwaterVehicle(), "mass"

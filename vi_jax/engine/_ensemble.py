@@ -18,7 +18,9 @@ tests/test_generated_step.py):
   ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
   shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
   vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
-  CPU plan; README, ``benchmarks/ensemble_gpu.py``).
+  CPU plan; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``)
+  splits the members into one group per core (:func:`~._member_groups.on_cores`), run at the
+  same time from worker threads: XLA:CPU runs one program's loops on one core.
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products
   are traced as batched dots (``batched_products``). Every 3×3 or 6×6 array keeps its tiny
   dimensions innermost, which XLA:CPU vectorises poorly.
@@ -59,6 +61,7 @@ from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..models import UnderwaterVehicle
 from ._placement import target_platform
+from ._member_groups import MIN_GROUP, join_groups, member_group, on_cores
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
 from ._generated_step import generated_loop, generated_scan, generated_solution, members_per_chunk
 from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
@@ -142,7 +145,9 @@ def ensemble(
     through the generated step, a program without Newton's full iterations runs first and the
     full one only if some member needs them (as ``vj.simulate``: :func:`~._simulate.optimistically`). Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
-    that counts them. ``progress=True`` (outside ``jit``) runs the members in equal groups of
+    that counts them. On CPU a concrete call runs the members in one group per core (at least
+    64 members each), the groups at the same time, each core on its own group.
+    ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
     """
     val.check_choice("method", method, METHODS)
@@ -209,7 +214,9 @@ def ensemble(
             if mesh is None:
                 def program(max_iterations, stop_at_failure):
                     plan = dict(loop_options, max_iterations=max_iterations, stop_at_failure=stop_at_failure)
-                    return _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **plan)
+                    if options["chunk"] is None:  # an accelerator: the whole batch in every kernel
+                        return _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **plan)
+                    return on_cores(_run_loop, dynamic, axes, n_members, static, axes, h, *counts, **plan)
 
                 if batched == "generated":  # vj.simulate's plan (figures: _any_failed)
                     sol = optimistically(program, options["max_iterations"], _any_failed)
@@ -377,31 +384,19 @@ def _sharded(dynamic, h, counts, *, static, axes, mesh, in_specs, n_local, **opt
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=spec, check_vma=False)(dynamic, h, counts)
 
 
-PROGRESS_GROUP = 64  # members per call at least: the vectorised paths lose throughput on fewer
-
-
 def _run_in_groups(run, dynamic, axes, n_members, n_steps):
-    """``run`` over equal groups of members (the last one padded with copies of its last
-    member: one program), with a tqdm bar counting member-steps; the groups' results joined."""
+    """``run`` over equal groups of members (at most 100, of at least ``MIN_GROUP``: one
+    program), one after another, with a tqdm bar counting member-steps; the groups' results
+    joined."""
     from tqdm.auto import tqdm
 
-    size = -(-n_members // max(1, min(100, n_members // PROGRESS_GROUP)))
-    is_none = lambda x: x is None  # noqa: E731
-
-    def group(start):
-        def take(ax, x):
-            if ax is None or x is None:
-                return x
-            return pad_members(jnp.asarray(np.asarray(x)[start : start + size]), size)  # sliced on the host
-
-        return jax.tree.map(take, axes, dynamic, is_leaf=is_none)
-
+    size = -(-n_members // max(1, min(100, n_members // MIN_GROUP)))
     parts = []
     with tqdm(total=n_members * n_steps, unit="member-step", unit_scale=True, desc="ensemble") as bar:
         for start in range(0, n_members, size):
-            parts.append(jax.tree.map(np.asarray, run(group(start), size)))
+            parts.append(jax.tree.map(np.asarray, run(member_group(dynamic, axes, start, size), size)))  # to the host as it comes
             bar.update(min(size, n_members - start) * n_steps)
-    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)[:n_members]), *parts)
+    return join_groups(parts, n_members)
 
 
 def _check_members(sol: Solution) -> Solution:

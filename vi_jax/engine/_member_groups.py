@@ -1,0 +1,64 @@
+"""An ensemble's members in equal groups for one compiled program: sliced on the host (the last
+group padded with copies of its last member), run one after another (the progress bar) or at
+the same time, one group per CPU core, and joined.
+
+Groups at the same time (:func:`on_cores`): XLA:CPU runs a program's loops on one core (it
+splits a fused operation over threads only when the operation is large, and none of a light
+step's is), but runs the programs that different host threads launch side by side. Each group
+is traced and compiled once, in the calling thread (so the caller's configuration contexts —
+precision, x64, default device — hold), and run from a worker thread.
+"""
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._member_split import pad_members
+
+MIN_GROUP = 64  # members per group at least: the vectorised paths lose throughput on fewer
+
+
+def cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def member_group(dynamic, axes, start, size):
+    """Members ``start`` … ``start + size − 1`` of the batched leaves (padded to ``size``)."""
+
+    def take(ax, x):
+        if ax is None or x is None:
+            return x
+        return pad_members(jnp.asarray(np.asarray(x)[start : start + size]), size)  # sliced on the host
+
+    return jax.tree.map(take, axes, dynamic, is_leaf=lambda x: x is None)
+
+
+def join_groups(parts, n_members):
+    """The groups' results (members first) as one, without the padding."""
+    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate([np.asarray(x) for x in xs])[:n_members]), *parts)
+
+
+def on_cores(program, dynamic, axes, n_members, *args, **kwargs):
+    """``program(dynamic, *args, n_members=n_members, **kwargs)`` (an ``eqx.filter_jit``
+    function whose members are independent) with the members in one group per CPU core, of
+    at least ``MIN_GROUP``, run at the same time; with one group, a plain call."""
+    n_groups = min(cores(), n_members // MIN_GROUP)
+    if n_groups < 2:
+        return program(dynamic, *args, n_members=n_members, **kwargs)
+    size = -(-n_members // n_groups)
+    groups = [member_group(dynamic, axes, start, size) for start in range(0, n_members, size)]
+    compiled = program.lower(groups[0], *args, n_members=size, **kwargs).compile()
+
+    def run(group):
+        return jax.block_until_ready(compiled(group, *args, n_members=size, **kwargs))
+
+    with ThreadPoolExecutor(len(groups)) as pool:
+        parts = list(pool.map(run, groups))
+    return join_groups(parts, n_members)
