@@ -35,7 +35,7 @@ def member_group(dynamic, axes, start, size):
     def take(ax, x):
         if ax is None or x is None:
             return x
-        return pad_members(jnp.asarray(np.asarray(x)[start : start + size]), size)  # sliced on the host
+        return jnp.asarray(pad_members(np.asarray(x)[start : start + size], size))  # sliced and padded on the host
 
     return jax.tree.map(take, axes, dynamic, is_leaf=lambda x: x is None)
 

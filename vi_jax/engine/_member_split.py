@@ -5,13 +5,16 @@ groups)."""
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 def pad_members(x, size):
-    """``x`` (members first) with copies of its last member appended up to ``size`` members."""
+    """``x`` (members first) with copies of its last member appended up to ``size`` members
+    (a NumPy array is padded on the host: no program to compile)."""
     if x.shape[0] == size:
         return x
-    return jnp.concatenate([x, jnp.repeat(x[-1:], size - x.shape[0], axis=0)])
+    xp = np if isinstance(x, np.ndarray) else jnp
+    return xp.concatenate([x, xp.repeat(x[-1:], size - x.shape[0], axis=0)])
 
 
 CHUNK = 64  # members per inner loop of the batched kernel on CPU (benchmarks/ensemble.py)
