@@ -5,7 +5,8 @@
     python benchmarks/member_groups.py [--fast-loops]
 
 - Groups: a concrete call with one group per core against the same call in one group, saving
-  the final node and every node (heavy top, order 1; rigid body, order 2).
+  the final node, every fourth node and every node (heavy top, order 1; rigid body, order 2);
+  groups forced where ``vj.ensemble`` would not use them (``MIN_STEPS_PER_NODE``: what decided it).
 - Newton's full iterations: ``vj.ensemble`` under ``jit`` with ``max_newton_iterations=3``
   (the optimistic plan's first program: no fallback compiled) against the default 20, for the
   scenes of ``benchmarks/ensemble_vs_vmap.py``' generated step.
@@ -29,7 +30,7 @@ from _generated import perturbed_states  # noqa: E402
 from vi_jax.engine import _member_groups  # noqa: E402
 
 MEMBERS, STEPS, REPEATS = 1024, 1000, 5
-CORES = _member_groups.cores
+CORES, MIN_STEPS_PER_NODE = _member_groups.cores, _member_groups.MIN_STEPS_PER_NODE
 
 
 def groups_rows():
@@ -37,13 +38,13 @@ def groups_rows():
     for scene, order, h in (("HeavyTop", 1, 0.005), ("RigidBody", 2, 0.01)):
         model = getattr(vj.models, scene)()
         states = perturbed_states(model.initial_state(), MEMBERS)
-        for save_every in (STEPS, 1):
+        for save_every in (STEPS, 4, 1):
             def call(cores, save_every=save_every):
-                _member_groups.cores = lambda: cores
+                _member_groups.cores, _member_groups.MIN_STEPS_PER_NODE = (lambda: cores), 1
                 try:
                     return vj.ensemble(model, states, h, STEPS, order=order, save_every=save_every, throw=False).g
                 finally:
-                    _member_groups.cores = CORES
+                    _member_groups.cores, _member_groups.MIN_STEPS_PER_NODE = CORES, MIN_STEPS_PER_NODE
 
             calls = {"one group": lambda: call(1), "one group per core": lambda: call(CORES())}
             for c in calls.values():

@@ -51,13 +51,16 @@ def test_groups_on_cores_equal_one_group(scene, method, order, monkeypatch):
         assert np.max(np.abs(ours - theirs)) <= 1e-12 * max(np.max(np.abs(theirs)), 1.0), name
 
 
-def test_one_group_below_twice_the_minimum(monkeypatch):
-    """Fewer than two groups' worth of members: a plain call, no worker thread."""
+@pytest.mark.parametrize("few", ["members", "steps per node"])
+def test_one_group_below_the_minimums(few, monkeypatch):
+    """Fewer than two groups' worth of members, or a node saved more often than every
+    ``MIN_STEPS_PER_NODE`` steps: a plain call, no worker thread."""
     monkeypatch.setattr(_member_groups, "cores", lambda: 8)
     monkeypatch.setattr(_member_groups, "ThreadPoolExecutor", None)  # would fail if used
     model = vj.models.RigidBody()
     x0 = model.initial_state()
-    n = 2 * _member_groups.MIN_GROUP - 1
+    n = 2 * _member_groups.MIN_GROUP - (1 if few == "members" else 0)
+    save_every = _member_groups.MIN_STEPS_PER_NODE - (1 if few == "steps per node" else 0)
     states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.1 * np.random.default_rng(2).normal(size=(n, 3)))
-    sol = vj.ensemble(model, states, 0.01, 10)
-    assert sol.g.shape == (n, 11, 3, 3)
+    sol = vj.ensemble(model, states, 0.01, 4 * save_every, save_every=save_every)
+    assert sol.g.shape == (n, 5, 3, 3)

@@ -18,7 +18,7 @@ tests/test_generated_step.py):
   ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
   shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
   vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
-  CPU plan; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``)
+  CPU plan; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``, a node saved every 4 steps or more)
   splits the members into one group per core (:func:`~._member_groups.on_cores`), run at the
   same time from worker threads: XLA:CPU runs one program's loops on one core.
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products
@@ -145,8 +145,8 @@ def ensemble(
     through the generated step, a program without Newton's full iterations runs first and the
     full one only if some member needs them (as ``vj.simulate``: :func:`~._simulate.optimistically`). Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
-    that counts them. On CPU a concrete call runs the members in one group per core (at least
-    64 members each), the groups at the same time, each core on its own group.
+    that counts them. On CPU a concrete call saving a node every 4 steps or more runs the
+    members in one group per core (at least 64 members each), the groups at the same time.
     ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
     """
@@ -216,7 +216,7 @@ def ensemble(
                     plan = dict(loop_options, max_iterations=max_iterations, stop_at_failure=stop_at_failure)
                     if options["chunk"] is None:  # an accelerator: the whole batch in every kernel
                         return _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **plan)
-                    return on_cores(_run_loop, dynamic, axes, n_members, static, axes, h, *counts, **plan)
+                    return on_cores(_run_loop, dynamic, axes, n_members, save_every, static, axes, h, *counts, **plan)
 
                 if batched == "generated":  # vj.simulate's plan (figures: _any_failed)
                     sol = optimistically(program, options["max_iterations"], _any_failed)

@@ -19,6 +19,11 @@ import numpy as np
 from ._member_split import pad_members
 
 MIN_GROUP = 64  # members per group at least: the vectorised paths lose throughput on fewer
+# Steps per saved node at least for groups at the same time: a run saving every node is bound by
+# writing the nodes, and the groups' join copies them once more (heavy top order 1, rigid body
+# order 2, with and without the loop option: 0.72-1.00x with every node saved, 1.19-1.51x with
+# every fourth, 1.30-1.65x with the final node; python benchmarks/member_groups.py [--fast-loops]).
+MIN_STEPS_PER_NODE = 4
 
 
 def cores() -> int:
@@ -45,11 +50,12 @@ def join_groups(parts, n_members):
     return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate([np.asarray(x) for x in xs])[:n_members]), *parts)
 
 
-def on_cores(program, dynamic, axes, n_members, *args, **kwargs):
+def on_cores(program, dynamic, axes, n_members, steps_per_node, *args, **kwargs):
     """``program(dynamic, *args, n_members=n_members, **kwargs)`` (an ``eqx.filter_jit``
-    function whose members are independent) with the members in one group per CPU core, of
-    at least ``MIN_GROUP``, run at the same time; with one group, a plain call."""
-    n_groups = min(cores(), n_members // MIN_GROUP)
+    function whose members are independent, saving a node every ``steps_per_node`` steps) with
+    the members in one group per CPU core, of at least ``MIN_GROUP``, run at the same time;
+    with one group, or fewer than ``MIN_STEPS_PER_NODE`` steps per node, a plain call."""
+    n_groups = min(cores(), n_members // MIN_GROUP) if steps_per_node >= MIN_STEPS_PER_NODE else 1
     if n_groups < 2:
         return program(dynamic, *args, n_members=n_members, **kwargs)
     size = -(-n_members // n_groups)
