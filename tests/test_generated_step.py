@@ -257,6 +257,20 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
 
 
+def test_only_the_cpu_plan_hides_the_inputs_behind_a_barrier(monkeypatch):
+    """Under a caller's trace the CPU plan puts the scene and h behind an optimisation barrier
+    (its fusion boundaries would fold away on constants); the accelerator plan has no boundaries
+    to keep, and there the barrier only cost constant folding: its program holds no barrier."""
+    from vi_jax.engine import _ensemble
+
+    system, x0, tau, order, h = _scene("heavy top, Cayley, order 2")
+    states = _states(x0, 5)
+    for platform, barrier in (("cpu", True), ("gpu", False)):
+        monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None, p=platform: p)
+        run = lambda s: vj.ensemble(system, s, h, 3, order=order, method="batched", throw=False).g  # noqa: E731
+        assert ("optimization_barrier" in str(jax.make_jaxpr(run)(states))) == barrier
+
+
 def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
     """The CPU plan's members per chunk follow the step's cost: the rigid body's residual with
     its Jacobian is light (``LIGHT_CHUNK``), the order-2 vehicle's is not (``CHUNK``), and under

@@ -248,7 +248,8 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
 
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     if batched == "generated":
-        dynamic, h = _opaque(dynamic, h)
+        if chunk is not None:
+            dynamic, h = _opaque(dynamic, h)
         system, x0 = eqx.combine(dynamic, static)
         rule, gammas = composition_coefficients(order)
         if chunk is not None:
@@ -283,7 +284,10 @@ def _opaque(dynamic, h):
     constant it drops the step's fusion boundaries (conditionals on h == h): the heavy top ran
     2.2-2.3x and the rigid body 1.4-2.8x slower so (two runs of ``python
     benchmarks/closed_over_inputs.py``). The vehicle's hand kernel has no such boundaries and
-    gains from the constants (1.25-1.27x): it gets no barrier."""
+    gains from the constants (1.25-1.27x): it gets no barrier. Neither does the GPU plan, which
+    has no fusion boundaries to keep: there the barrier only cost constant folding (H100, 2^20
+    members closed over, 1.07-1.10x slower with it: ``python benchmarks/closed_over_inputs.py
+    --members 1048576 --steps 238 --scenes heavy_top rigid_body [--order 2]``)."""
     return jax.lax.optimization_barrier((dynamic, h))
 
 
@@ -326,8 +330,8 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
     if batched == "generated":
-        dynamic, h = _opaque(dynamic, h)
         if chunk is not None:
+            dynamic, h = _opaque(dynamic, h)
             chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
 
         def kernel(system, x0, n):

@@ -1,9 +1,9 @@
 """Where a single trajectory runs.
 
 A single trajectory is a long chain of tiny dependent steps: on a GPU every loop iteration costs
-kernel launches, so it runs 20–100× slower than on the host CPU (an H100: 158 µs per vehicle
-step, against 8.1 µs on the same machine's CPU with default XLA flags and 1.5 µs with the loop
-option: README, "Where to run"). Ensembles are the opposite: their
+kernel launches, so it runs 15–100× slower than on the host CPU (an H100: 158–162 µs per vehicle
+step, against 8.1–10.2 µs on the same machine's CPU with default XLA flags and 1.5–1.8 µs with the
+loop option: README, "Where to run"). Ensembles are the opposite: their
 members fill the GPU. ``simulate(device=...)`` chooses; by default a single trajectory on an
 accelerator warns once and runs where asked.
 """
