@@ -34,6 +34,15 @@ def time_alternately(calls, repeats=7):
     return {name: statistics.median(s) for name, s in samples.items()}
 
 
+def cpu_per_wall(call, repeats=3):
+    """CPU seconds of this process per wall second over ``repeats`` runs of ``call`` (compiled
+    already): above 1, XLA ran work on more than one thread."""
+    cpu, wall = time.process_time(), time.perf_counter()
+    for _ in range(repeats):
+        jax.block_until_ready(call())
+    return (time.process_time() - cpu) / (time.perf_counter() - wall)
+
+
 def write_json(path, payload):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -9,15 +9,25 @@
   groups forced where ``vj.ensemble`` would not use them (``MIN_STEPS_PER_NODE``: what decided it).
 - Newton's full iterations: ``vj.ensemble`` under ``jit`` with ``max_newton_iterations=3``
   (the optimistic plan's first program: no fallback compiled) against the default 20, for the
-  scenes of ``benchmarks/ensemble_vs_vmap.py``' generated step.
+  scenes of ``benchmarks/ensemble_vs_vmap.py``' generated step, with each program's CPU seconds
+  per wall second, here and in a child process bound to one core (``--one-core``): XLA:CPU's
+  thunk executor may run a program's independent fusions on several threads, and where it
+  does, the cost of handing tiny fusions between threads shows.
 """
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 
-from _timing import parse_args_with_fast_loops, time_alternately, write_config_json
+from _timing import cpu_per_wall, parse_args_with_fast_loops, time_alternately, write_config_json
 
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+PARSER.add_argument("--one-core", action="store_true", help="only the fallback rows, printed as JSON (bind to one core first)")
 ARGS = parse_args_with_fast_loops(PARSER)
+if ARGS.one_core:  # before JAX starts its backend, which sizes its thread pool from the cores allowed
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
@@ -72,11 +82,25 @@ def fallback_rows():
             jax.block_until_ready(c())
         seconds = time_alternately(calls, REPEATS)
         rate = {k: MEMBERS * STEPS / t for k, t in seconds.items()}
-        rows.append(dict(scene=scene, order=order, rates=rate, ratio=rate["max_newton_iterations=3"] / rate["max_newton_iterations=20"]))
-        print(f"{scene:10s} order {order}, under jit: " + ", ".join(f"{k} {r / 1e6:6.2f} M" for k, r in rate.items())
-              + f" member-steps/s: without / with the fallback {rows[-1]['ratio']:.2f}x", flush=True)
+        cpu = {k: cpu_per_wall(c) for k, c in calls.items()}
+        rows.append(dict(scene=scene, order=order, cores=len(os.sched_getaffinity(0)), rates=rate, cpu_per_wall=cpu,
+                         ratio=rate["max_newton_iterations=3"] / rate["max_newton_iterations=20"]))
+        print(f"{scene:10s} order {order}, under jit, {rows[-1]['cores']} core(s): "
+              + ", ".join(f"{k} {r / 1e6:6.2f} M ({cpu[k]:.2f} CPU s/s)" for k, r in rate.items())
+              + f" member-steps/s: without / with the fallback {rows[-1]['ratio']:.2f}x", flush=True, file=sys.stderr if ARGS.one_core else sys.stdout)
     return rows
 
 
+def fallback_rows_on_one_core():
+    """:func:`fallback_rows` in a child process bound to one core."""
+    argv = [sys.executable, __file__, "--one-core"] + (["--fast-loops"] if ARGS.fast_loops else [])
+    run = subprocess.run(argv, stdout=subprocess.PIPE, text=True, check=True)
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
 if __name__ == "__main__":
-    write_config_json("member_groups", ARGS.fast_loops, groups=groups_rows(), fallback=fallback_rows())
+    if ARGS.one_core:
+        print(json.dumps(fallback_rows()))
+    else:
+        write_config_json("member_groups", ARGS.fast_loops, groups=groups_rows(), fallback=fallback_rows(),
+                          fallback_on_one_core=fallback_rows_on_one_core())
