@@ -14,12 +14,13 @@ Rows, written to ``--out`` after every measurement (so a run cut short keeps wha
   member-step), compiled code only, median of 5.
 - ``peers`` (vehicle order 1, float64, ``--peer-members``): a plain ``jax.vmap`` of the hand-written
   step (tests/hand_vehicle.py), and the batched kernel with the CPU plan (chunks of 64 members
-  one after another, what every backend ran before).
+  one after another, what every backend ran before) at no more than ``CPU_PLAN_MEMBERS`` members
+  (its chunks run one after another: at 32,768 members its timing alone outran a 600 s call).
 - ``peers`` (every generated case, float64, ``--peer-members``): ``method="vmap"``, a plain
   ``jax.vmap`` of ``vj.simulate``'s program.
 - ``agreement``: per case and dtype, the first 4 members' final states against ``vj.simulate``
   on the host CPU in float64 (max abs difference of R and ξ).
-- ``single``: one trajectory, ``vj.simulate`` of the vehicle at order 1, µs per step on the
+- ``single`` (before the peers): one trajectory, ``vj.simulate`` of the vehicle at order 1, µs per step on the
   default device, and on the host CPU with default XLA flags and with the loop option (child
   processes: XLA reads its flags once).
 """
@@ -40,6 +41,7 @@ from _timing import time_compiled  # noqa: E402
 CASES = {"vehicle1": ("vehicle", 1), "vehicle1_generated": ("vehicle", 1), "vehicle2": ("vehicle", 2),
          "heavy_top1": ("heavy_top", 1), "heavy_top2": ("heavy_top", 2)}
 STEP = {"vehicle": 0.01, "heavy_top": 0.005}
+CPU_PLAN_MEMBERS = 4096
 
 
 def _cast(tree, dtype):
@@ -162,6 +164,10 @@ def measure(args):
                       f"(compile+first {first:6.1f} s, converged {converged:.3f})", flush=True)
                 save()
 
+    if args.single and not over_budget():
+        out["rows"] += single_rows(args.single_steps)
+        save()
+
     # plain vmap of vj.simulate for every generated case, float64
     for case in args.cases:
         if case == "vehicle1" or not args.peer_members or over_budget():
@@ -202,6 +208,8 @@ def measure(args):
         print(f"peer plain vmap hand step {members} members: {members * n_steps / median / 1e9:.3f} G/s", flush=True)
         save()
         if not over_budget():
+            members = min(members, CPU_PLAN_MEMBERS)
+            states = _states(x0, members, jnp.float64)
             real = _ensemble.target_platform
             _ensemble.target_platform = lambda mesh=None: "cpu"  # the CPU plan: chunks of 64 members
             try:
@@ -212,10 +220,6 @@ def measure(args):
                                     members=members, steps=n_steps, compile_and_first_s=first, median_s=median, rate=members * n_steps / median))
             print(f"peer batched kernel, CPU plan {members} members: {members * n_steps / median / 1e9:.3f} G/s", flush=True)
             save()
-
-    if args.single and not over_budget():
-        out["rows"] += single_rows(args.single_steps)
-        save()
     return out
 
 
