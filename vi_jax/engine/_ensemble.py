@@ -17,7 +17,7 @@ tests/test_generated_step.py):
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
   ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
   shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
-  vehicle kernel: 2.4–2.5 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
+  vehicle kernel: 2.35–2.47 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
   CPU plan; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``, a node saved every 4 steps or more)
   splits the members into one group per core (:func:`~._member_groups.on_cores`), run at the
   same time from worker threads: XLA:CPU runs one program's loops on one core.
