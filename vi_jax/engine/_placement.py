@@ -33,7 +33,7 @@ def placement(device):
         if _accelerator_default() and not _warned:
             _warned = True
             warnings.warn(
-                "simulate: a single trajectory on an accelerator is latency-bound (20-100x slower "
+                "simulate: a single trajectory on an accelerator is latency-bound (15-100x slower "
                 "than the host CPU); pass device='cpu' to run it there, or use vj.ensemble for many "
                 "trajectories. This warning is shown once.",
                 PerformanceWarning,
