@@ -71,8 +71,9 @@ def fast_loops_from_argv():
     return parse_args_with_fast_loops().fast_loops
 
 
-def write_config_json(name, fast_loops, **payload):
-    """``benchmarks/results/<name>[_fast_loops].json`` with the XLA configuration named."""
+def write_config_json(name, fast_loops, path=None, **payload):
+    """``benchmarks/results/<name>[_fast_loops].json`` (or ``path``) with the XLA configuration named."""
     suffix = "_fast_loops" if fast_loops else ""
     config = "enable_fast_cpu_loops()" if fast_loops else "default XLA flags"
-    write_json(Path(__file__).resolve().parent / "results" / f"{name}{suffix}.json", dict(config=config, **payload))
+    path = path or Path(__file__).resolve().parent / "results" / f"{name}{suffix}.json"
+    write_json(path, dict(config=config, **payload))

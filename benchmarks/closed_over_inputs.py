@@ -16,7 +16,7 @@ so there the question is only what the barrier costs: e.g. ``--members 1048576 -
 import argparse
 import time
 
-from _timing import parse_args_with_fast_loops, write_config_json, write_json
+from _timing import parse_args_with_fast_loops, write_config_json
 
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 PARSER.add_argument("--members", type=int, default=1024)
@@ -74,11 +74,7 @@ def main():
             print(f"{name:10s}: " + ", ".join(f"{label(*v)} {r / 1e6:5.2f} M" for v, r in rate.items()) + " member-steps/s", flush=True)
     finally:
         _ensemble._opaque = OPAQUE
-    payload = dict(device=str(jax.devices()[0]), jax=jax.__version__, rows=rows)
-    if ARGS.out:
-        write_json(ARGS.out, dict(config="enable_fast_cpu_loops()" if ARGS.fast_loops else "default XLA flags", **payload))
-    else:
-        write_config_json("closed_over_inputs", ARGS.fast_loops, **payload)
+    write_config_json("closed_over_inputs", ARGS.fast_loops, ARGS.out, device=str(jax.devices()[0]), jax=jax.__version__, rows=rows)
 
 
 if __name__ == "__main__":
