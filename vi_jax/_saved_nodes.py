@@ -8,31 +8,46 @@ import jax.numpy as jnp
 import numpy as np
 
 SAVE_BLOCK = 128  # saved nodes per inner scan: one long output buffer costs XLA:CPU more than a step
+SEQUENTIAL_BYTES = 512  # XLA:CPU runs a loop body's operations in order when no buffer is larger
 
 
-def scan_saved_nodes(node, state, length, checkpoint=False):
+def scan_saved_nodes(node, state, length, checkpoint=False, block=SAVE_BLOCK):
     """``length`` applications of ``node(state, None) -> (state, out)`` through a two-level scan
-    (blocks of ``SAVE_BLOCK`` nodes; benchmarks/step_cost.py); returns (final state, the outs
+    (blocks of ``block`` nodes; benchmarks/step_cost.py); returns (final state, the outs
     stacked). With ``checkpoint``, reverse mode stores only the states at block boundaries and
     at the nodes, and recomputes what lies between them."""
     if checkpoint:
         node = jax.checkpoint(node)
 
-    def block(state, _):
-        return jax.lax.scan(node, state, None, length=SAVE_BLOCK)
+    def nodes(state, _):
+        return jax.lax.scan(node, state, None, length=block)
 
     if checkpoint:
-        block = jax.checkpoint(block)
+        nodes = jax.checkpoint(nodes)
 
-    n_blocks, rest = divmod(length, SAVE_BLOCK)
+    n_blocks, rest = divmod(length, block)
     pieces = []
     if n_blocks:
-        state, out = jax.lax.scan(block, state, None, length=n_blocks)
+        state, out = jax.lax.scan(nodes, state, None, length=n_blocks)
         pieces.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out))
     if rest:
         state, out = jax.lax.scan(node, state, None, length=rest)
         pieces.append(out)
     return state, jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
+
+
+def step_block(state) -> int:
+    """Nodes per block when a node is a single step: the most (a power of two, 2 to
+    ``SAVE_BLOCK``) whose rows of ``state``'s largest leaf fit ``SEQUENTIAL_BYTES``. XLA:CPU's
+    thunk executor hands a loop body's fused operations to its thread pool once a buffer is
+    larger; a step's operations take well under a microsecond each, so the hand-offs cost more
+    than they gain (the vehicle under ``jit``, every node saved, default XLA: 50,000 steps in
+    0.24–0.36 s in blocks of 4, 0.50–0.58 s in blocks of 128, ``python
+    benchmarks/step_cost.py``). A block of one node would not help: XLA inlines a loop of one
+    iteration."""
+    largest = max(x.size * x.dtype.itemsize for x in jax.tree.leaves(state))
+    fits = max(SEQUENTIAL_BYTES // max(largest, 1), 2)
+    return min(1 << (fits.bit_length() - 1), SAVE_BLOCK)
 
 
 def rematerialised_steps(steps, carry, n):

@@ -17,9 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._saved_nodes import SAVE_BLOCK, loop_saved_nodes, rematerialised_steps, scan_saved_nodes
+from .._saved_nodes import SAVE_BLOCK, loop_saved_nodes, rematerialised_steps, scan_saved_nodes, step_block
+from .._xla_flags import loop_option_requested
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
+from ._placement import target_platform
 
 
 def _sub_step(system, tau, rule, rtol, max_iter):
@@ -128,12 +130,13 @@ def _guessing(state, guess):
 def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, max_iter, checkpoint=False):
     """``length`` saved nodes of ``save_every`` steps each; returns (final state, saved states, stats).
 
-    Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes): writing every
-    step's state straight into one long output buffer costs XLA:CPU more than the step itself
+    Nodes are saved through a two-level scan (blocks of ``SAVE_BLOCK`` nodes, of
+    :func:`step_block` nodes when every step is saved): writing every step's state straight
+    into one long output buffer costs XLA:CPU more than the step itself
     (benchmarks/step_cost.py). With ``checkpoint``, reverse mode stores only the state at block
     boundaries (and at saved nodes) and recomputes the steps inside a block; the steps between
     two saved nodes run as √save_every rematerialised blocks, so memory grows like
-    n/(SAVE_BLOCK·save_every) + SAVE_BLOCK + √save_every states (benchmarks/gradients.py).
+    n/(block·save_every) + block + √save_every states (benchmarks/gradients.py).
     """
 
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
@@ -156,8 +159,18 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         carry, stats = one_step(carry, None) if save_every == 1 else node_steps(carry)
         return carry, (carry[0], stats)
 
-    (state, _), (saved, stats) = scan_saved_nodes(node, _with_previous(state), length, checkpoint)
+    block = _node_block(state, save_every)
+    (state, _), (saved, stats) = scan_saved_nodes(node, _with_previous(state), length, checkpoint, block)
     return state, saved, stats
+
+
+def _node_block(state, save_every):
+    """Saved nodes per block of :func:`advance_scan`: :func:`step_block` when every step is
+    saved under XLA:CPU's default loop plan (where a step's operations would otherwise share a
+    loop body with the block's large output buffers), else ``SAVE_BLOCK``."""
+    if save_every == 1 and target_platform() == "cpu" and not loop_option_requested():
+        return step_block(state)
+    return SAVE_BLOCK
 
 
 def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter, stop_at_failure=False):

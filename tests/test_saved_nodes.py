@@ -1,0 +1,68 @@
+"""Saved nodes under transformations: a two-level scan whose blocks, when every step is saved on
+XLA:CPU's default loop plan, are as many nodes as keep the step's loop body within the sizes
+the thunk executor runs in order (:func:`vi_jax._saved_nodes.step_block`). The blocks change
+where the loops split, never the steps: a traced run equals the concrete run at every length
+around a block boundary."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import vi_jax as vj
+from vi_jax._saved_nodes import SAVE_BLOCK, SEQUENTIAL_BYTES, step_block
+from vi_jax.discrete import legendre_initial_state
+from vi_jax.engine import _advance
+from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
+
+EPS = np.finfo(np.float64).eps
+SCENES = (vj.models.UnderwaterVehicle, vj.models.HeavyTop, lambda: vj.models.RigidBody(group=vj.lie.SOn(6)))
+
+
+def _state(scene, dtype):
+    model = scene()
+    x0 = jax.tree.map(lambda x: None if x is None else jnp.asarray(x, dtype), model.initial_state())
+    return model, legendre_initial_state(model, x0.g, x0.xi, x0.q, x0.qdot)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+@pytest.mark.parametrize("scene", SCENES)
+def test_a_block_is_the_most_nodes_whose_largest_leaf_fits(scene, dtype):
+    _, state = _state(scene, dtype)
+    largest = max(x.size * x.dtype.itemsize for x in jax.tree.leaves(state))
+    block = step_block(state)
+    assert block & (block - 1) == 0 and 2 <= block <= SAVE_BLOCK
+    assert block * largest <= SEQUENTIAL_BYTES or block == 2
+    assert 2 * block * largest > SEQUENTIAL_BYTES or block == SAVE_BLOCK
+
+
+def test_the_block_follows_the_loop_plan(monkeypatch):
+    """Blocks of steps only where every step is saved on the CPU with default loops; blocks of
+    ``SAVE_BLOCK`` with a node every few steps (their steps run in an inner loop already), with
+    the loop option (one kernel per loop) and on an accelerator."""
+    _, state = _state(vj.models.UnderwaterVehicle, jnp.float64)
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert _advance._node_block(state, 1) == step_block(state) == 4  # 4 rows of a 3×3 float64 g: 288 B
+    assert _advance._node_block(state, 2) == SAVE_BLOCK
+    monkeypatch.setattr(_advance, "target_platform", lambda: "gpu")
+    assert _advance._node_block(state, 1) == SAVE_BLOCK
+    monkeypatch.undo()
+    monkeypatch.setenv("XLA_FLAGS", FAST_LOOPS_FLAG)
+    assert _advance._node_block(state, 1) == SAVE_BLOCK
+
+
+@pytest.mark.parametrize("n_steps", [1, 3, 4, 5, 11, SAVE_BLOCK + 3])
+def test_traced_runs_equal_the_concrete_run_around_block_boundaries(n_steps):
+    """Every node, vehicle at order 1 (blocks of 4 nodes): the jitted run (scan in blocks and a
+    rest) equals the concrete run (a loop of traced length) to Newton's tolerance (64ε per step, a
+    √n random walk, a factor 4 for its tail), and its times are the nodes'."""
+    model = vj.models.UnderwaterVehicle()
+    x0 = model.initial_state()
+    concrete = vj.simulate(model, x0, 0.01, n_steps)
+    traced = jax.jit(lambda x: vj.simulate(model, x, 0.01, n_steps))(x0)
+    assert traced.q.shape == (n_steps + 1, 3)
+    np.testing.assert_allclose(np.asarray(traced.t), 0.01 * np.arange(n_steps + 1), rtol=4 * EPS)
+    bound = 4 * 64 * EPS * np.sqrt(n_steps)
+    for field in ("g", "q", "M", "P", "energy"):
+        ours, theirs = np.asarray(getattr(traced, field)), np.asarray(getattr(concrete, field))
+        assert np.max(np.abs(ours - theirs)) <= bound * max(np.max(np.abs(theirs)), 1.0), field
