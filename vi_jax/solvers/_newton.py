@@ -1,7 +1,7 @@
 """Newton's method for the small dense systems of one implicit step, with implicit-function
 gradients (``jax.lax.custom_root``): reverse mode never unrolls the iterations.
 
-The linear solves are unrolled Gaussian elimination with partial pivoting: for the 3–12
+The linear solves are unrolled Gaussian elimination without pivoting: for the 3–12
 unknowns of a step this is far cheaper inside ``lax.scan`` on CPU than a LAPACK call
 (``benchmarks/step_cost.py`` measures the whole step).
 """
