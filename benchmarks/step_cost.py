@@ -6,6 +6,9 @@ steps) against a hand-specialised JAX implementation of eq. (88) in the same pro
         python benchmarks/step_cost.py --out benchmarks/results/step_cost_tuned.json
 
 The second form measures with the XLA:CPU loop option of the command line (vi_jax/engine/_cpu_tuning.py).
+The row "blocks of 128 nodes" is the every-node program as it was before ``step_block`` (the
+peer that justifies the blocks of 4 nodes of the default loop plan; with the loop option both
+rows are the same program).
 """
 
 import argparse
@@ -13,6 +16,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from unittest import mock
 
 import jax
 
@@ -21,6 +25,8 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
+from vi_jax._saved_nodes import SAVE_BLOCK  # noqa: E402
+from vi_jax.engine import _advance  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -46,6 +52,11 @@ def main():
     for order in (1, 2):
         engine = jax.jit(lambda m, x, order=order: vj.simulate(m, x, args.h, args.steps, order=order, throw=False))
         rows[f"vj.simulate order={order}, every node saved + diagnostics"] = time_compiled(engine, model, x0)
+    blocks_of_128 = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
+    jax.clear_caches()  # vj.simulate's traced program is cached by its arguments: trace it anew
+    with mock.patch.object(_advance, "_node_block", lambda state, save_every: SAVE_BLOCK):
+        rows[f"vj.simulate order=1, every node saved + diagnostics, blocks of {SAVE_BLOCK} nodes"] = time_compiled(blocks_of_128, model, x0)
+    jax.clear_caches()
     final = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, save_every=args.steps, throw=False))
     rows["vj.simulate order=1, final node only"] = time_compiled(final, model, x0)
     # The call users make: concrete inputs, one program per saved-node capacity (traced step counts).
