@@ -42,7 +42,7 @@ def step_block(state) -> int:
     thunk executor hands a loop body's fused operations to its thread pool once a buffer is
     larger; a step's operations take well under a microsecond each, so the hand-offs cost more
     than they gain (the vehicle under ``jit``, every node saved, default XLA: 50,000 steps in
-    0.24–0.36 s in blocks of 4, 0.50–0.58 s in blocks of 128, ``python
+    0.26 s in blocks of 4 against 0.71 s in blocks of 128 in one process, ``python
     benchmarks/step_cost.py``). A block of one node would not help: XLA inlines a loop of one
     iteration."""
     largest = max(x.size * x.dtype.itemsize for x in jax.tree.leaves(state))
