@@ -248,18 +248,16 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
 
         return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     if batched == "generated":
-        if chunk is not None:
-            dynamic, h = _opaque(dynamic, h)
-        system, x0 = eqx.combine(dynamic, static)
         rule, gammas = composition_coefficients(order)
         if chunk is not None:
-            chunk = members_per_chunk(system, x0, axes, h, tau, rule, n_members)
+            dynamic, h = _opaque(dynamic, h)
+            chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
 
         def kernel(system, x0, n):
             return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint, chunk is not None)
 
         nodes = in_chunks(dynamic, static, axes, n_members, chunk, kernel)
-        return generated_solution(system, axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)
+        return generated_solution(eqx.combine(dynamic, static)[0], axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)
 
     if scheme == "splitting":  # jitted pieces, cached as for single runs: no dots (see below)
         def split(system, x0):
