@@ -15,6 +15,7 @@ from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
 from ..lie import difference_map
 from .._accuracy import warn_if_meaningless
 from ._advance import advance_loop, advance_scan, traced_composition
+from ._compile_options import single_trajectory_jit
 from ._placement import placement
 from .._precision import full_precision
 from .._saved_nodes import first_rows, saved_capacity
@@ -190,13 +191,13 @@ def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, g
 
 scan_program, loop_program, assemble = _simulate_scan, _simulate_loop, _assemble
 # Jitted under the same names (compile logs and tests/test_program_reuse.py name them).
-_simulate_scan = eqx.filter_jit(_simulate_scan)
-_simulate_loop = eqx.filter_jit(_simulate_loop)
+_simulate_scan = single_trajectory_jit(_simulate_scan)
+_simulate_loop = single_trajectory_jit(_simulate_loop)
 
 
-_initial_jit = eqx.filter_jit(_initial)
-_advance_loop_jit = eqx.filter_jit(advance_loop)
-_assemble_jit = eqx.filter_jit(_assemble)
+_initial_jit = single_trajectory_jit(_initial)
+_advance_loop_jit = single_trajectory_jit(advance_loop)
+_assemble_jit = single_trajectory_jit(_assemble)
 
 
 def _simulate_optimistically(system, x0, h, n_saved, save_every, *, max_iter, **options):

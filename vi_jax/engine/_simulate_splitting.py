@@ -1,7 +1,6 @@
 """``simulate(scheme="splitting")``: the explicit splitting of a separable scene
 (:mod:`vi_jax.discrete._splitting`) with the same :class:`Solution` as the DEP scheme."""
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -9,6 +8,7 @@ from .._system import State
 from .._saved_nodes import first_rows, saved_capacity
 from ..discrete._splitting import advance, advance_loop, initial_phase, nodes, resolved_parts
 from ..solvers import NOT_SEPARABLE, SUCCESS
+from ._compile_options import single_trajectory_jit
 from ._solution import Solution, node_invariants
 
 
@@ -48,25 +48,25 @@ def _diagnostics(parts, nodes_, h, save_every):
     )
 
 
-@eqx.filter_jit
+@single_trajectory_jit
 def _run(parts, x0, h, n_saved, save_every, method, arrangement, checkpoint):
     phase0 = initial_phase(parts, x0)
     saved = advance(parts, method, arrangement, h, phase0, n_saved, save_every, checkpoint)
     return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
 
 
-@eqx.filter_jit
+@single_trajectory_jit
 def _run_loop(parts, x0, h, n_saved, save_every, capacity, method, arrangement):
     phase0 = initial_phase(parts, x0)
     saved = advance_loop(parts, method, arrangement, h, phase0, n_saved, save_every, capacity)
     return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
 
 
-_initial_jit = eqx.filter_jit(initial_phase)
-_advance_jit = eqx.filter_jit(advance)
+_initial_jit = single_trajectory_jit(initial_phase)
+_advance_jit = single_trajectory_jit(advance)
 
 
-@eqx.filter_jit
+@single_trajectory_jit
 def _assemble(parts, phase0, saved, h, save_every):
     return _diagnostics(parts, nodes(parts, phase0, saved), h, save_every)
 
