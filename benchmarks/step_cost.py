@@ -8,7 +8,9 @@ steps) against a hand-specialised JAX implementation of eq. (88) in the same pro
 The second form measures with the XLA:CPU loop option of the command line (vi_jax/engine/_cpu_tuning.py).
 The row "blocks of 128 nodes" is the every-node program as it was before ``step_block`` (the
 peer that justifies the blocks of 4 nodes of the default loop plan; with the loop option both
-rows are the same program).
+rows are the same program). The row "small products as dots" is the every-node program with
+the products of the Lagrangian left as ``dot_general``s (the peer of ``fused_products``,
+``vi_jax/lie/_small.py``).
 """
 
 import argparse
@@ -27,6 +29,7 @@ import jax.numpy as jnp  # noqa: E402
 import vi_jax as vj  # noqa: E402
 from vi_jax._saved_nodes import SAVE_BLOCK  # noqa: E402
 from vi_jax.engine import _advance  # noqa: E402
+from vi_jax.lie import _small  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -56,6 +59,10 @@ def main():
     jax.clear_caches()  # vj.simulate's traced program is cached by its arguments: trace it anew
     with mock.patch.object(_advance, "_node_block", lambda state, save_every: SAVE_BLOCK):
         rows[f"vj.simulate order=1, every node saved + diagnostics, blocks of {SAVE_BLOCK} nodes"] = time_compiled(blocks_of_128, model, x0)
+    jax.clear_caches()
+    dots = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
+    with mock.patch.object(_small, "_is_small_dot", lambda eqn: False):
+        rows["vj.simulate order=1, every node saved + diagnostics, small products as dots"] = time_compiled(dots, model, x0)
     jax.clear_caches()
     final = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, save_every=args.steps, throw=False))
     rows["vj.simulate order=1, final node only"] = time_compiled(final, model, x0)

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from .._shared_values import shared
+from ..lie._small import with_fused_products
 from ..solvers import SINGULAR_DIFFERENCE_MAP, newton_root
 from ._quadrature import discrete_lagrangian
 
@@ -85,8 +86,7 @@ def discrete_momenta(system, tau, rule, h, z, n, a):
 def dep_step(system, tau, rule, h, state: StepState, *, rtol, max_iterations):
     """One step (g_k, q_k, M_k, P_k) ↦ (g_{k+1}, q_{k+1}, M_{k+1}, P_{k+1})."""
     G = system.group
-    n = system.body_configuration(state.g, state.q)
-    a = system.body_advected(state.g)
+    n, a = with_fused_products(lambda g, q: (system.body_configuration(g, q), system.body_advected(g)))(state.g, state.q)
     target = _join(state.M, state.P)
 
     def residual(z):
@@ -94,14 +94,18 @@ def dep_step(system, tau, rule, h, state: StepState, *, rtol, max_iterations):
         return _join(m, p) - target, scale
 
     z, stats = newton_root(residual, state.z, rtol=rtol, max_iterations=max_iterations)
-    xi, nu = _split(system, z)
-    _, (m_next, p_next), _ = discrete_momenta(system, tau, rule, h, z, n, a)
-    lam = tau.tau(G, h * xi)
-    q_next = None
-    if system.has_additional:
-        q_next = state.q + h * system.configuration_action.act(state.g, nu)
-    result = jnp.where(tau.is_regular(G, h * xi), stats.result, SINGULAR_DIFFERENCE_MAP)
-    new_state = StepState(G.compose(state.g, lam), q_next, m_next, p_next, z)
+
+    def update(z):
+        xi, nu = _split(system, z)
+        _, (m_next, p_next), _ = discrete_momenta(system, tau, rule, h, z, n, a)
+        lam = tau.tau(G, h * xi)
+        q_next = None
+        if system.has_additional:
+            q_next = state.q + h * system.configuration_action.act(state.g, nu)
+        return StepState(G.compose(state.g, lam), q_next, m_next, p_next, z), tau.is_regular(G, h * xi)
+
+    new_state, regular = with_fused_products(update)(z)
+    result = jnp.where(regular, stats.result, SINGULAR_DIFFERENCE_MAP)
     return new_state, StepStats(stats.iterations, stats.residual, result.astype(jnp.int8))
 
 
