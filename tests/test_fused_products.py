@@ -91,3 +91,13 @@ def test_batched_products_keep_the_dots():
     with _small.batched_products():
         replayed = jax.make_jaxpr(_small.fused_products(closed))(jnp.ones(3))
     assert _dots(replayed.jaxpr)
+
+
+def test_a_vmapped_simulate_keeps_its_dots():
+    """``jax.vmap`` of ``vj.simulate`` (and ``vj.ensemble(method="vmap")``) batch the step:
+    there batched dots are faster, so the replay keeps them."""
+    model = vj.models.UnderwaterVehicle()
+    x0 = model.initial_state()
+    members = vj.vary(x0, xi=x0.xi + jnp.linspace(0.0, 0.1, 4)[:, None])
+    closed = jax.make_jaxpr(lambda s: jax.vmap(lambda x: vj.simulate(model, x, 0.01, 10, throw=False).q)(s))(members)
+    assert any(_dots(step) for step in _scan_bodies(closed.jaxpr))

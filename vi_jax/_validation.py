@@ -15,6 +15,11 @@ def is_concrete(x) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
+def is_batched(x) -> bool:
+    """Whether a leaf of ``x`` is being batched by ``jax.vmap`` (a batch tracer)."""
+    return any(isinstance(leaf, jax.core.Tracer) and hasattr(leaf, "batch_dim") for leaf in jax.tree_util.tree_leaves(x))
+
+
 def _eager(check):
     """Evaluate a check at trace time when its inputs are concrete constants."""
 

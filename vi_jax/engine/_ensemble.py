@@ -55,7 +55,7 @@ from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
 from ..discrete._composition import composition_coefficients
-from ..lie._small import batched_products
+from ..lie._small import batched_products, keeping_dots
 from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, optimistically, scan_program, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
@@ -272,7 +272,7 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
             rtol=rtol, max_iter=max_iterations, checkpoint=checkpoint,
         )
 
-    with batched_products(chunk is not None):  # scan_program is traced afresh: no cached inner jit
+    with batched_products(chunk is not None), keeping_dots():  # scan_program is traced afresh: no cached inner jit
         return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(system, x0)
 
 
@@ -345,7 +345,7 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
             rtol=rtol, max_iter=max_iterations,
         )
 
-    with batched_products(chunk is not None):
+    with batched_products(chunk is not None), keeping_dots():
         return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(*eqx.combine(dynamic, static))
 
 

@@ -18,6 +18,7 @@ from ._advance import advance_loop, advance_scan, traced_composition
 from ._compile_options import single_trajectory_jit
 from ._placement import placement
 from .._precision import full_precision
+from ..lie._small import keeping_dots
 from .._saved_nodes import first_rows, saved_capacity
 from ._node_velocities import node_velocities
 from ._simulate_splitting import simulate_splitting
@@ -133,7 +134,8 @@ def simulate(
     options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
     with full_precision():
         if not val.is_concrete((system, x0, h)):
-            sol = _simulate_scan(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
+            program = _simulate_scan_batched if val.is_batched((system, x0, h)) else _simulate_scan
+            sol = program(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
         else:
             with placement(device):
                 # the trapezoid compositions (orders 2, 4, 6) as traced data: one program
@@ -190,8 +192,19 @@ def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, g
 
 
 scan_program, loop_program, assemble = _simulate_scan, _simulate_loop, _assemble
+
+
+def _simulate_scan_batched(*args, **kwargs):
+    """``_simulate_scan`` for ``jax.vmap`` to batch: the step's products kept as dots
+    (:func:`~vi_jax.lie._small.keeping_dots`; a program of its own, so that neither traced
+    program is reused for the other)."""
+    with keeping_dots():
+        return scan_program(*args, **kwargs)
+
+
 # Jitted under the same names (compile logs and tests/test_program_reuse.py name them).
 _simulate_scan = single_trajectory_jit(_simulate_scan)
+_simulate_scan_batched = eqx.filter_jit(_simulate_scan_batched)
 _simulate_loop = single_trajectory_jit(_simulate_loop)
 
 
