@@ -203,7 +203,7 @@ def _simulate_scan_batched(*args, **kwargs):
 
 
 # Jitted under the same names (compile logs and tests/test_program_reuse.py name them).
-_simulate_scan = single_trajectory_jit(_simulate_scan)
+_simulate_scan = eqx.filter_jit(_simulate_scan)  # traced inputs only: under a transformation
 _simulate_scan_batched = eqx.filter_jit(_simulate_scan_batched)
 _simulate_loop = single_trajectory_jit(_simulate_loop)
 

@@ -1,6 +1,7 @@
 """``simulate(scheme="splitting")``: the explicit splitting of a separable scene
 (:mod:`vi_jax.discrete._splitting`) with the same :class:`Solution` as the DEP scheme."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -48,7 +49,7 @@ def _diagnostics(parts, nodes_, h, save_every):
     )
 
 
-@single_trajectory_jit
+@eqx.filter_jit  # traced inputs only: under a transformation
 def _run(parts, x0, h, n_saved, save_every, method, arrangement, checkpoint):
     phase0 = initial_phase(parts, x0)
     saved = advance(parts, method, arrangement, h, phase0, n_saved, save_every, checkpoint)
