@@ -7,7 +7,7 @@ ones, ensembles keep the fusion ones).
 Each case is one jitted call (scene, states and h as arguments), lowered once and compiled twice
 per emitter, alternately (``compiler_options={"xla_cpu_use_fusion_emitters": False}`` or not):
 backend compile seconds, and the median of 5 compiled runs per step (single trajectories:
-20,000 steps, every node saved) or per member-step (ensembles: 1024 members × 1000 steps, final
+20,000 steps, every node saved; the beam's time march: 16 nodes, 2000 steps) or per member-step (ensembles: 1024 members × 1000 steps, final
 node saved, ``vj.ensemble``'s default path under ``jit``). A program compiled anew is cached by
 XLA's in-process cache after its first compile: the second compile of each pair is timed on a
 program whose HLO differs by a unique constant.
@@ -29,6 +29,7 @@ import vi_jax as vj  # noqa: E402
 from vi_jax.engine._compile_options import ELEMENTAL_EMITTERS  # noqa: E402
 
 STEPS = 20_000
+BEAM_NODES, BEAM_STEPS = 16, 2000
 MEMBERS, MEMBER_STEPS = 1024, 1000
 EMITTERS = {"fusion (XLA's default)": None, "elemental": ELEMENTAL_EMITTERS}
 
@@ -61,6 +62,10 @@ def main():
             cases.append((f"simulate {name} order {order}", run, (scenes[name], scenes[name].initial_state()), STEPS))
     split = lambda m, x: vj.simulate(m, x, 0.05, STEPS, scheme="splitting", order=4, throw=False)  # noqa: E731
     cases.append(("simulate vehicle splitting order 4", split, (scenes["vehicle"], scenes["vehicle"].initial_state()), STEPS))
+    beam = vj.models.GeometricallyExactBeam()
+    g0, xi0 = beam.initial_state(BEAM_NODES)
+    march = lambda g, xi: vj.multisymplectic.time_march(beam, g, xi0=xi, dt=1e-4, ds=float(beam.length) / BEAM_NODES, n_steps=BEAM_STEPS).g  # noqa: E731
+    cases.append((f"beam time march, {BEAM_NODES} nodes", march, (g0, xi0), BEAM_STEPS))
     for name, model in scenes.items():
         x0 = model.initial_state()
         members = vj.vary(x0, xi=x0.xi * (1 + 0.1 * jnp.linspace(0, 1, MEMBERS))[:, None])

@@ -1,13 +1,14 @@
 """How a single trajectory's programs are compiled on XLA:CPU: with its elemental emitters.
 
-``vj.simulate``'s programs (the DEP and splitting loops, the node diagnostics) are chains of
-tiny operations; XLA:CPU's elemental emitters (``xla_cpu_use_fusion_emitters=False``) compile
-them in 0.55–0.75× the backend time of its default fusion emitters (20,000 steps: the vehicle
-at order 1 1.79 → 1.10 s, order 2 3.13 → 2.35 s, the heavy top at order 2 1.63 → 1.12 s, the
-order-4 splitting 1.20 → 0.85 s) and they run as fast (0.89–1.04× per step); with the loop
-option both compile and run within 0.83–1.03×. Ensembles keep the fusion emitters: there the
-generated step at order 2 runs 1.23–1.40× slower with the elemental ones and compiles
-1.18–1.32× longer (``python benchmarks/emitters.py [--fast-loops]``, default XLA flags).
+The concrete calls' programs of ``vj.simulate`` (the DEP and splitting loops, the node
+diagnostics) and of the beam's ``time_march`` are chains of tiny operations; XLA:CPU's elemental
+emitters (``xla_cpu_use_fusion_emitters=False``) compile them in 0.55–0.75× the backend time of
+its default fusion emitters (the vehicle at order 1 1.72–1.79 → 1.10 s, order 2 3.09–3.13 →
+2.30–2.35 s, the heavy top at order 2 1.63–1.65 → 1.11–1.12 s, the order-4 splitting 1.17–1.20 →
+0.85–0.88 s, the beam 2.13 → 1.49 s) and they run as fast or faster (0.88–1.04× per step); with
+the loop option compile and run within 0.77–1.03×. Ensembles keep the fusion emitters: there the
+generated step at order 2 runs 1.23–1.40× slower with the elemental ones and compiles 1.18–1.32×
+longer (``python benchmarks/emitters.py [--fast-loops]``, two runs with default XLA flags).
 
 The option goes with each program (``jax.jit``'s ``compiler_options``), not with the process:
 where the user's ``XLA_FLAGS`` name the emitters, that choice stands; on another platform, or

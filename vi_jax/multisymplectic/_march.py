@@ -26,6 +26,7 @@ import numpy as np
 from jax.extend.core import Literal
 
 from .. import _validation as val
+from ..engine._compile_options import single_trajectory_jit
 from ..solvers import RESULT_MESSAGES, SUCCESS, dense_solve, newton_root
 from ._lagrangian import dual_Ad
 
@@ -237,7 +238,7 @@ def _advance(engine: Engine, carry: Carry, n_saved: int, save_every: int, n_tota
     return jax.lax.scan(chunk, carry, carry.k // save_every + jnp.arange(n_saved))
 
 
-_advance_jit = eqx.filter_jit(_advance)
+_advance_jit = single_trajectory_jit(_advance)
 
 
 def advance_loop(engine: Engine, carry: Carry, n_rows, save_every, capacity: int) -> Rows:

@@ -13,6 +13,7 @@ from .. import _validation as val
 from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
 from .._saved_nodes import first_rows, saved_capacity
+from ..engine._compile_options import single_trajectory_jit
 from ..lie import difference_map
 from . import _march
 from ._lagrangian import AbstractCovariantSystem
@@ -220,11 +221,11 @@ def _assemble(engine, rows, save_every):
     )
 
 
-_start_jit = eqx.filter_jit(_start)
-_assemble_jit = eqx.filter_jit(_assemble)
+_start_jit = single_trajectory_jit(_start)
+_assemble_jit = single_trajectory_jit(_assemble)
 
 
-@eqx.filter_jit
+@single_trajectory_jit
 def _time_march_loop(system, g0, xi0, g1, dt, ds, n_rows, save_every, *, capacity, **options):
     engine, carry = _start(system, g0, xi0, g1, dt, ds, **options)
     return _assemble(engine, _march.advance_loop(engine, carry, n_rows, save_every, capacity), save_every)
