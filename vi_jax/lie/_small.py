@@ -121,7 +121,8 @@ _KEEP_DOTS = False
 def keeping_dots(enabled: bool = True):
     """While active, :func:`fused_products` replays the dots as they are: for a step that a
     ``jax.vmap`` batches, where batched dots beat multiply-and-sum (a plain ``vmap`` of
-    ``vj.simulate`` over 1024 members ran 1.04–1.8× slower with multiply-and-sum)."""
+    ``vj.simulate`` over 1024 members ran 1.04–1.8× slower with multiply-and-sum, in a throwaway
+    A/B when this was written; ``python benchmarks/ensemble_vs_vmap.py`` times that ``vmap``)."""
     global _KEEP_DOTS
     previous, _KEEP_DOTS = _KEEP_DOTS, bool(enabled)
     try:
