@@ -23,6 +23,7 @@ import contextlib
 
 import jax
 import jax.numpy as jnp
+from jax.extend import core as jcore
 
 _DOTS = False
 
@@ -80,7 +81,7 @@ def _is_small_dot(eqn):
     if eqn.primitive.name != "dot_general":
         return False
     (lc, _), _ = eqn.params["dimension_numbers"]
-    lhs, rhs = (v.aval for v in eqn.invars)
+    lhs = eqn.invars[0].aval
     contracted = 1
     for d in lc:
         contracted *= lhs.shape[d]
@@ -93,8 +94,6 @@ _INLINED = {"pjit": "jaxpr", "jit": "jaxpr", "closed_call": "call_jaxpr"}
 def _eval_fused(jaxpr, consts, *args):
     """``jaxpr`` evaluated with its small ``dot_general``s (and those of the calls it inlines)
     as multiply-and-sum."""
-    from jax.extend import core as jcore
-
     env = {}
     read = lambda v: v.val if isinstance(v, jcore.Literal) else env[v]  # noqa: E731
     env.update(zip(jaxpr.constvars, consts))
@@ -136,19 +135,20 @@ def fused_products(closed):
     product of at most ``SMALL_PRODUCT`` elements) written as multiply-and-sum, which fuses with
     its neighbours (module docstring); under :func:`batched_products` or :func:`keeping_dots` it
     replays the dots."""
-    from jax.extend import core as jcore
-
     if _DOTS or _KEEP_DOTS:
         return jcore.jaxpr_as_fun(closed)
     return lambda *args: _eval_fused(closed.jaxpr, closed.consts, *args)
 
 
-def with_fused_products(fn):
-    """``fn`` (a function of arrays and pytrees of them) traced at each call and replayed by
+def traced_with_fused_products(fn, *example):
+    """``fn`` (a function of arrays and pytrees of them) traced once at the shapes of
+    ``example``; the returned function of such arguments replays its jaxpr by
     :func:`fused_products`."""
+    closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*example)
+    out_tree, replay = jax.tree.structure(out_shape), fused_products(closed)
+    return lambda *args: jax.tree.unflatten(out_tree, replay(*jax.tree.leaves(args)))
 
-    def call(*args):
-        closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
-        return jax.tree.unflatten(jax.tree.structure(out_shape), fused_products(closed)(*jax.tree.leaves(args)))
 
-    return call
+def with_fused_products(fn):
+    """``fn`` traced at each call and replayed by :func:`fused_products`."""
+    return lambda *args: traced_with_fused_products(fn, *args)(*args)

@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..lie._small import fused_products
+from ..lie._small import traced_with_fused_products
 
 # Result codes recorded per step (0 = success).
 SUCCESS = 0
@@ -61,9 +61,7 @@ def traced_once(fn, z):
     Jacobian, chord steps, full iterations and ``custom_root`` call it six times: replaying
     skips the model's Python code (the vehicle's first ``vj.simulate`` call 2.76 → 2.31 s,
     most of it tracing and lowering; README, "Compiling")."""
-    closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(z)
-    out_tree, replay = jax.tree.structure(out_shape), fused_products(closed)
-    return lambda z: jax.tree.unflatten(out_tree, replay(*jax.tree.leaves(z)))
+    return traced_with_fused_products(fn, z)
 
 
 class NewtonStats(eqx.Module):
