@@ -21,7 +21,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
+from _generated import perturbed_states  # noqa: E402
 from vi_jax.discrete import composition_coefficients  # noqa: E402
 from vi_jax.engine import _generated_step  # noqa: E402
 from vi_jax.lie import difference_map  # noqa: E402
@@ -73,5 +73,4 @@ def main():
 
 
 if __name__ == "__main__":
-    with generated_step_for_every_scene():
-        main()
+    main()

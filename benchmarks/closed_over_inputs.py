@@ -1,8 +1,8 @@
 """``vj.ensemble`` under a caller's ``jit`` that closes over the scene and h (XLA sees them as
 constants) against one that passes them as arguments, with the batched steps' inputs behind an
 optimisation barrier (``_opaque`` in ``vi_jax/engine/_ensemble.py``) and without: 1024 members ×
-1000 steps, final node saved, Cayley, order 1 (the vehicle: its hand kernel, which the barrier
-does not wrap: its two barrier variants are the same program), compiled code only, the variants
+1000 steps, final node saved, Cayley, order 1 (results/closed_over_inputs*.json measured the
+vehicle on its former hand kernel, which the barrier did not wrap), compiled code only, the variants
 timed alternately in one process (median of 5).
 
     python benchmarks/closed_over_inputs.py [--fast-loops]

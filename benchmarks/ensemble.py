@@ -9,7 +9,9 @@ repeats; final state returned, so saving costs nothing):
 - ``plain vmap, hand step``: ``jax.vmap`` of the hand-specialised step of tests/hand_vehicle.py
   (eqs. 73–74 with 88, 3×3 matrices, three Newton iterations) — the peer;
 - ``plain vmap, vj.simulate``: ``vj.ensemble(method="vmap")``, the generic engine under vmap;
-- ``batched kernel``: ``vj.ensemble(method="batched")``, members on the vectorised axis.
+- ``batched kernel``: ``vj.ensemble(method="batched")``, members on the vectorised axis (the
+  step generated from the Lagrangian; results/ensemble.json measured the former hand-written
+  vehicle step, now ``_hand_vehicle_kernel.py``).
 
 XLA configurations: ``default`` (no flags), ``tuned``: XLA_FLAGS
 ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000``, which lets

@@ -2,7 +2,7 @@
 capacity, a power of two): the first call, a call with a new ``n_steps`` (final node saved),
 and the compiled run time over ``RUN_STEPS`` steps against the traced path (``eqx.filter_jit``
 around the call with the scene and h as arguments: static lengths, a program per ``n_steps``),
-for the batched vehicle kernel and the ``vmap`` path (vehicle, order 1, 64
+for the batched step and the ``vmap`` path (vehicle, order 1, 64
 members, final node saved), in one process.
 
     python benchmarks/ensemble_compile.py [--fast-loops]

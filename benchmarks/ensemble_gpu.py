@@ -2,18 +2,18 @@
 should run. Meant for a GPU machine; runs anywhere (small sizes on a CPU as a smoke test).
 
     python benchmarks/ensemble_gpu.py [--members 1024 32768 1048576] [--dtypes float64 float32]
-        [--cases vehicle1 vehicle1_generated heavy_top2 heavy_top1 vehicle2] [--budget-s 520] [--out FILE]
+        [--cases vehicle1 vehicle1_hand heavy_top2 heavy_top1 vehicle2] [--budget-s 520] [--out FILE]
 
 Rows, written to ``--out`` after every measurement (so a run cut short keeps what it measured):
 
-- ``ensemble``: ``jax.jit`` of ``vj.ensemble`` (``method="auto"``: the vehicle at order 1 takes the
-  hand-written batched kernel, every other case the step generated from the scene;
-  ``vehicle1_generated`` is the vehicle at order 1 through the generated step), member-steps per second, the final
+- ``ensemble``: ``jax.jit`` of ``vj.ensemble`` (``method="auto"``: the step generated from the
+  scene; ``vehicle1_hand`` is the vehicle at order 1 through the hand-written batched step of
+  ``_hand_vehicle_kernel.py``, the peer), member-steps per second, the final
   node only saved and only small outputs returned (final ξ, converged fraction), h = 0.01 (vehicle) / 0.005 (heavy top), Cayley, members with perturbed
   initial velocities. Each size runs ``min(1000, 2.5e8 / members)`` steps (the rate is per
   member-step), compiled code only, median of 5.
 - ``peers`` (vehicle order 1, float64, ``--peer-members``): a plain ``jax.vmap`` of the hand-written
-  step (tests/hand_vehicle.py), and the batched kernel with the CPU plan (chunks of 64 members
+  step (tests/hand_vehicle.py), and ``vj.ensemble`` with the CPU plan (chunks of 64 members
   one after another, what every backend ran before) at no more than ``CPU_PLAN_MEMBERS`` members
   (its chunks run one after another: at 32,768 members its timing alone outran a 600 s call).
 - ``peers`` (every generated case, float64, ``--peer-members``): ``method="vmap"``, a plain
@@ -36,9 +36,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _generated import generated_step_for_every_scene  # noqa: E402
 from _timing import time_compiled  # noqa: E402
-CASES = {"vehicle1": ("vehicle", 1), "vehicle1_generated": ("vehicle", 1), "vehicle2": ("vehicle", 2),
+CASES = {"vehicle1": ("vehicle", 1), "vehicle1_hand": ("vehicle", 1), "vehicle2": ("vehicle", 2),
          "heavy_top1": ("heavy_top", 1), "heavy_top2": ("heavy_top", 2)}
 STEP = {"vehicle": 0.01, "heavy_top": 0.005}
 CPU_PLAN_MEMBERS = 4096
@@ -112,6 +111,7 @@ def measure(args):
 
     import vi_jax as vj
     from vi_jax.engine import _ensemble
+    from _hand_vehicle_kernel import hand_kernel_ensemble
 
     sys.path.insert(0, str(HERE.parent / "tests"))
     from hand_vehicle import make_step, vehicle_params
@@ -142,8 +142,11 @@ def measure(args):
                     return out
                 n_steps = args.steps or int(min(1000, max(50, 2.5e8 // members)))
                 states = _states(x0, members, dtype)
-                fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
-                with generated_step_for_every_scene(case.endswith("_generated")), _fusion_boundaries(args.boundaries):
+                if case.endswith("_hand"):
+                    fn = jax.jit(lambda x, n=n_steps: _summary(hand_kernel_ensemble(model, x, h, n, save_every=n, chunk=None)))
+                else:
+                    fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
+                with _fusion_boundaries(args.boundaries):
                     first, median, _ = time_compiled(fn, states, repeats=5)
                     last_xi, converged, g4, xi4 = fn(states)
                 converged = float(converged)
@@ -170,7 +173,7 @@ def measure(args):
 
     # plain vmap of vj.simulate for every generated case, float64
     for case in args.cases:
-        if case == "vehicle1" or not args.peer_members or over_budget():
+        if case == "vehicle1_hand" or not args.peer_members or over_budget():
             continue
         name, order = CASES[case]
         members = args.peer_members
@@ -216,9 +219,9 @@ def measure(args):
                 first, median, _ = time_compiled(final(model, 0.01, n_steps), states, repeats=5)
             finally:
                 _ensemble.target_platform = real
-            out["rows"].append(dict(kind="peer", case="vehicle1", implementation="batched kernel, CPU plan (chunks of 64)", dtype="float64",
+            out["rows"].append(dict(kind="peer", case="vehicle1", implementation="vj.ensemble, CPU plan (chunks of 64)", dtype="float64",
                                     members=members, steps=n_steps, compile_and_first_s=first, median_s=median, rate=members * n_steps / median))
-            print(f"peer batched kernel, CPU plan {members} members: {members * n_steps / median / 1e9:.3f} G/s", flush=True)
+            print(f"peer vj.ensemble, CPU plan {members} members: {members * n_steps / median / 1e9:.3f} G/s", flush=True)
             save()
     return out
 

@@ -1,4 +1,4 @@
-"""Reverse mode through an ensemble (the vehicle's batched kernel, Cayley, order 1, h = 0.01,
+"""Reverse mode through an ensemble (the vehicle's batched step, Cayley, order 1, h = 0.01,
 float64): XLA's temporary memory and the gradient/forward time ratio, with ``checkpoint=True``
 (``vj.ensemble``'s default) and ``checkpoint=False``.
 

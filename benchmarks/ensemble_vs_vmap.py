@@ -8,7 +8,7 @@ CPU seconds per wall second.
     python benchmarks/ensemble_vs_vmap.py [--members 1024] [--steps 1000] [--fast-loops]
 
 Cases: vehicle (orders 1 and 2), heavy top (1, 2), rigid body (1, 2), Cayley. ``vj.ensemble``
-takes its default path: the hand kernel for the vehicle at order 1, else the generated step.
+takes its default path, the step generated from the scene's Lagrangian.
 """
 
 import argparse

@@ -1,6 +1,7 @@
 """Unknowns solved before Newton in the generated batched step (``explicit_block``: rows of the
 Jacobian affine in as many unknowns, the vehicle's ν at order 1, seed 000 eq. 74) against
-Newton on every unknown, and both against the vehicle's hand kernel: ``vj.ensemble`` of the
+Newton on every unknown, and both against the vehicle's hand-written batched step
+(``_hand_vehicle_kernel.py``, seed 000 eqs. 73–74, the peer to reach): ``vj.ensemble`` of the
 vehicle at order 1 (1024 members × 1000 steps, final node saved, Cayley, the CPU plan), with
 parameters shared by the members and with a mass per member, the three variants compiled in
 one process and timed alternately (median of 7 runs each).
@@ -22,7 +23,8 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
+from _generated import perturbed_states  # noqa: E402
+from _hand_vehicle_kernel import hand_kernel_ensemble  # noqa: E402
 from vi_jax.engine import _member_newton  # noqa: E402
 
 MEMBERS, STEPS, REPEATS, H = 1024, 1000, 7, 0.01
@@ -34,9 +36,11 @@ def compiled(systems, axes, states, variant):
     is read at trace time) and its final attitudes."""
     jax.clear_caches()
     _member_newton.explicit_block = BLOCK if variant == "generated, block" else lambda *args: None
-    with generated_step_for_every_scene(variant != "hand kernel"):
+    if variant == "hand kernel":
+        run = jax.jit(lambda m, s, h: hand_kernel_ensemble(m, s, h, STEPS, save_every=STEPS, system_axes=axes))
+    else:
         run = jax.jit(lambda m, s, h: vj.ensemble(m, s, h, STEPS, save_every=STEPS, system_axes=axes, method="batched", throw=False))
-        run = run.lower(systems, states, jnp.asarray(H)).compile()
+    run = run.lower(systems, states, jnp.asarray(H)).compile()
     return run, np.asarray(run(systems, states, jnp.asarray(H)).g[:, -1])
 
 

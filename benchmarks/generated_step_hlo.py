@@ -5,7 +5,6 @@ no timing. Per scene: the elementwise operations per member (fused computations 
 the operations XLA copied into them, so the count exceeds the jaxpr's where XLA duplicates
 cheap subexpressions), and the thunks XLA:CPU dispatches one by one with its default flags:
 loop fusions, conditionals (the step's fusion boundaries) and the copies their branches make.
-For the vehicle at order 1 the generated step is shown (``vj.ensemble`` runs its hand kernel).
 Where Newton's factors are carried from step to step (the order-2 scenes), a step that takes a
 Jacobian is counted (the refresh conditional's taken branch is its last one, as for the
 boundaries).
@@ -24,7 +23,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import generated_step_for_every_scene, perturbed_states  # noqa: E402
+from _generated import perturbed_states  # noqa: E402
 from vi_jax.engine import _ensemble  # noqa: E402
 
 MEMBERS, STEPS = 1024, 1000
@@ -92,18 +91,17 @@ def step_body(comps):
 def main():
     rows = []
     _ensemble.members_per_chunk = lambda *args: _ensemble.CHUNK  # light steps too (they pick 512)
-    with generated_step_for_every_scene():
-        for name, scene, h, order in CASES:
-            model = scene()
-            states = perturbed_states(model.initial_state(), MEMBERS)
-            run = jax.jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False).g[:, -1])
-            comps = computations(run.lower(model, states, jnp.asarray(h)).compile().as_text())
-            count = census(comps, step_body(comps))
-            thunks = count["fusions"] + count["conditionals"] + count["copies"]
-            rows.append(dict(scene=name, order=order, operations=count["operations"], fusions=count["fusions"],
-                             conditionals=count["conditionals"], copies=count["copies"], thunks=thunks))
-            print(f"{name:10s} order {order}: {count['operations']:6d} elementwise operations per member-step, "
-                  f"{thunks} thunks ({count['fusions']} fusions, {count['conditionals']} conditionals, {count['copies']} copies)", flush=True)
+    for name, scene, h, order in CASES:
+        model = scene()
+        states = perturbed_states(model.initial_state(), MEMBERS)
+        run = jax.jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False).g[:, -1])
+        comps = computations(run.lower(model, states, jnp.asarray(h)).compile().as_text())
+        count = census(comps, step_body(comps))
+        thunks = count["fusions"] + count["conditionals"] + count["copies"]
+        rows.append(dict(scene=name, order=order, operations=count["operations"], fusions=count["fusions"],
+                         conditionals=count["conditionals"], copies=count["copies"], thunks=thunks))
+        print(f"{name:10s} order {order}: {count['operations']:6d} elementwise operations per member-step, "
+              f"{thunks} thunks ({count['fusions']} fusions, {count['conditionals']} conditionals, {count['copies']} copies)", flush=True)
     write_config_json("generated_step_hlo", False, members_per_chunk=_ensemble.CHUNK, rows=rows)
 
 

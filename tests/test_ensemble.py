@@ -53,8 +53,8 @@ def test_ensemble_equals_simulate_member_by_member(method):
     """Initial states and parameters batched together; every member's trajectory and
     diagnostics equal its own unbatched run (vmap: the same equations, compiled batched and
     unbatched, so each step may stop at a different iterate within Newton's tolerance 64ε: a
-    random walk of √n such steps, with a factor 4 for its tail; batched kernel: the paper's
-    eqs. 73–74, the same scheme, equal to round-off; τ = exp: next test)."""
+    random walk of √n such steps, with a factor 4 for its tail; batched: the step generated from
+    the same Lagrangian, ν solved first as in eq. 74, equal to round-off; τ = exp: next test)."""
     refs = references("cayley")
     sol = ensemble(MODELS, STATES, H, N_STEPS, system_axes=0, save_every=SAVE_EVERY, method=method)
     assert sol.q.shape == (B, N_STEPS // SAVE_EVERY + 1, 3)
@@ -160,9 +160,9 @@ def test_float32_runs_and_agrees_with_float64():
     np.testing.assert_allclose(sol32.q, sol64.q, rtol=0, atol=1e-4)
 
 
-def test_batched_kernel_gradients_match_finite_differences():
-    """Reverse mode through the batched kernel's implicit steps, per-member parameters, against
-    central differences of the same kernel."""
+def test_batched_step_gradients_match_finite_differences():
+    """Reverse mode through the batched step's implicit steps, per-member parameters, against
+    central differences of the same step."""
 
     def loss(models):
         sol = ensemble(models, STATES, H, N_STEPS, system_axes=0, save_every=SAVE_EVERY, method="batched")
@@ -183,7 +183,7 @@ def test_batched_kernel_gradients_match_finite_differences():
 
 
 @pytest.mark.parametrize("save_every", [SAVE_EVERY, N_STEPS])
-def test_batched_kernel_checkpointed_gradient_equals_plain_gradient(save_every):
+def test_batched_step_checkpointed_gradient_equals_plain_gradient(save_every):
     """``checkpoint=True`` (the default) only rematerialises: the gradient equals the stored
     one to 1e-12 relative (the same operations, recomputed; ``N_STEPS`` > the 128-node block
     exercises the √save_every blocks between two saved nodes)."""

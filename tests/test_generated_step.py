@@ -334,8 +334,8 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
 def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
     """Rows of the Jacobian affine in the unknowns (coefficients shared by all members, or per
     member but independent of the unknowns: read from the Jacobian's jaxpr) and zero outside as
-    many unknowns are solved first, exactly; Newton runs on the rest. The vehicle at order 1
-    through the generated step (``vj.ensemble`` runs its hand kernel there): P_k = ℓ_ν − hℓ_n
+    many unknowns are solved first, exactly; Newton runs on the rest. The vehicle at order 1:
+    P_k = ℓ_ν − hℓ_n
     (seed 000 eq. 74) makes ν explicit, so Newton sees ω alone (3 unknowns of 6), with shared
     and with per-member masses, and the members still equal their own ``vj.simulate`` runs (a
     6×6 Newton there); at order 2 the rule couples ξ and ν: no block."""
@@ -357,7 +357,6 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
         return newton(fn, z0, **kwargs)
 
     monkeypatch.setattr(_member_newton, "newton_members", spy)
-    monkeypatch.setattr(_ensemble, "_vehicle_kernel_applies", lambda *args: False)  # the generated step
     jax.clear_caches()  # traced afresh, through the spy
     system = vj.models.UnderwaterVehicle()
     states = _states(system.initial_state(), 4)
@@ -456,3 +455,29 @@ def test_affine_residuals_are_solved_without_a_loop(name, loops):
     system, states = _node_problem(name)
     jaxpr = jax.make_jaxpr(lambda s: node_velocities(system, s, 64 * EPS, 20))(states)
     assert str(jaxpr).count("while[") == loops
+
+
+def test_nothing_behind_ensemble_names_a_model():
+    """``vj.ensemble`` and the step it generates hold no model-specific code: no module of the
+    engine or of the discrete schemes imports ``vi_jax.models`` or names one of its classes
+    (docstrings aside)."""
+    import ast
+    import pathlib
+
+    models = {name for name in dir(vj.models) if isinstance(getattr(vj.models, name), type)}
+    assert {"UnderwaterVehicle", "HeavyTop", "RigidBody"} <= models
+    root = pathlib.Path(vj.__file__).parent
+    paths = sorted((root / "engine").glob("*.py")) + sorted((root / "discrete").glob("*.py"))
+    assert any(p.name == "_ensemble.py" for p in paths) and any(p.name == "_generated_step.py" for p in paths)
+    for path in paths:
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                assert "models" not in (node.module or "").split("."), (path.name, node.module)
+                assert not models & {a.name for a in node.names}, path.name
+            elif isinstance(node, ast.Import):
+                assert not any("models" in a.name.split(".") for a in node.names), path.name
+            elif isinstance(node, ast.Name):
+                assert node.id not in models, (path.name, node.id)
+            elif isinstance(node, ast.Attribute):
+                assert node.attr not in models, (path.name, node.attr)

@@ -15,7 +15,7 @@ FIELDS = ["g", "xi", "M", "energy", "kelvin_noether", "newton_iterations", "resu
 @pytest.mark.parametrize(
     "scene, method, order",
     [("HeavyTop", "batched", 1), ("UnderwaterVehicle", "batched", 1), ("RigidBody", "vmap", 2)],
-    ids=["generated step", "vehicle kernel", "vmap"],
+    ids=["generated step", "generated step, nu solved first", "vmap"],
 )
 def test_groups_on_cores_equal_one_group(scene, method, order, monkeypatch):
     """Seven members on three "cores" (groups of at least two): groups of three, the last

@@ -37,7 +37,7 @@ def test_ensemble_progress_run_equals_the_plain_run(method, monkeypatch, capsys)
 
     monkeypatch.setattr(_ensemble, "MIN_GROUP", 2)
     rng = np.random.default_rng(0)
-    if method == "batched":  # the vehicle kernel
+    if method == "batched":  # the generated step, the vehicle
         model, field = vj.models.UnderwaterVehicle(), "mass"
         values = 123.8 + rng.uniform(-5, 5, size=5)
     else:
@@ -51,7 +51,7 @@ def test_ensemble_progress_run_equals_the_plain_run(method, monkeypatch, capsys)
     shown = run(values, progress=True)
     assert f"{5 * n_steps}/{5 * n_steps}" in capsys.readouterr().err
     first, last = run(values[:3]), run(values[2:])
-    # The batched kernel is elementwise over members, and jax.vmap of vj.simulate updates only
+    # The generated step is elementwise over members, and jax.vmap of vj.simulate updates only
     # the members whose Newton solve has not converged: a member's place in its group changes
     # nothing; allow XLA a few ulps per step in the vmap path all the same (8, added over the run).
     bound = 0.0 if method == "batched" else 8 * n_steps * np.finfo(np.float64).eps

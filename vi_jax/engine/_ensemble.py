@@ -10,15 +10,13 @@ tests/test_generated_step.py):
   *component arrays* of shape (members,), so every operation of a step is an elementwise loop
   over the members and XLA fuses a whole Newton iteration into one vectorised loop; unknowns
   with explicit equations are solved before Newton (:func:`~._member_newton.explicit_block`).
-  For the :class:`~vi_jax.models.UnderwaterVehicle` at ``order=1`` a hand-written kernel of the
-  paper's eqs. 73–74 (:mod:`._vehicle_kernel`) is still faster (1.01–1.23× with shared
-  parameters, 1.15–1.45× with a mass per member: ``benchmarks/explicit_block.py``), and is used
-  there. The plan
+  No path names a model (the vehicle's hand-written step, faster at order 1 on CPU with default
+  XLA flags, is now the benchmarks' peer: ``benchmarks/explicit_block.py``). The plan
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
   ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
   shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
-  vehicle kernel: 2.35–2.47 G member-steps/s in float64 at 2²⁰ members, against 1.5 M with the
-  CPU plan; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``, a node saved every 4 steps or more)
+  the heavy top at order 1: 2.47 G member-steps/s in float64 at 2²⁰ members; a chunked plan ran
+  50× slower; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``, a node saved every 4 steps or more)
   splits the members into one group per core (:func:`~._member_groups.on_cores`), run at the
   same time from worker threads: XLA:CPU runs one program's loops on one core.
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products
@@ -59,12 +57,10 @@ from ..lie._small import batched_products, keeping_dots
 from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, optimistically, scan_program, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
-from ..models import UnderwaterVehicle
 from ._placement import target_platform
 from ._member_groups import MIN_GROUP, join_groups, member_group, on_cores
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
 from ._generated_step import generated_loop, generated_scan, generated_solution, members_per_chunk
-from ._vehicle_kernel import _vehicle_batched, _vehicle_loop
 
 METHODS = ("auto", "batched", "vmap")
 
@@ -104,10 +100,6 @@ def member_converged(sol: Solution):
     return jnp.all(sol.result == SUCCESS, axis=-1)
 
 
-def _vehicle_kernel_applies(system, tau, order):
-    return isinstance(system, UnderwaterVehicle) and order == 1 and tau.name in ("cayley", "exp")
-
-
 def ensemble(
     system,
     x0: State,
@@ -132,8 +124,8 @@ def ensemble(
 
     ``system_axes`` / ``x0_axes``: 0 where the argument carries a leading member axis, None
     where it is shared, or a pytree prefix of such (as ``jax.vmap``); :func:`vary` builds
-    batched arguments. ``method``: "batched" (the generated batched step; for the vehicle at
-    order 1 its hand-written kernel), "vmap" (``jax.vmap`` of the DEP program) or "auto"
+    batched arguments. ``method``: "batched" (the batched step generated from the scene's
+    Lagrangian), "vmap" (``jax.vmap`` of the DEP program) or "auto"
     (batched). ``mesh``: a ``jax.sharding.Mesh``; members
     are split over all its devices (padded to a multiple of their number). The other keywords
     are ``vj.simulate``'s (``checkpoint=True`` by default, on every path: reverse mode
@@ -183,7 +175,7 @@ def ensemble(
             raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
     batched = None
     if scheme == "dep" and method != "vmap":
-        batched = "vehicle" if _vehicle_kernel_applies(system, tau_map, order) else "generated"
+        batched = "generated"
     if mesh is not None and not isinstance(mesh, jax.sharding.Mesh):
         raise ValueError(f"mesh: expected a jax.sharding.Mesh, got {type(mesh).__name__}")
 
@@ -242,11 +234,6 @@ def ensemble(
 @eqx.filter_jit
 def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
     system, x0 = eqx.combine(dynamic, static)
-    if batched == "vehicle":
-        def kernel(system, x0, n):
-            return _vehicle_batched(system, x0, h, n_saved, save_every, tau.name, rtol, max_iterations, n, checkpoint)
-
-        return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     if batched == "generated":
         rule, gammas = composition_coefficients(order)
         if chunk is not None:
@@ -281,8 +268,7 @@ def _opaque(dynamic, h):
     closes over the scene and h, XLA would fold them into the program as constants, and with h
     constant it drops the step's fusion boundaries (conditionals on h == h): the heavy top ran
     2.2-2.3x and the rigid body 1.4-2.8x slower so (two runs of ``python
-    benchmarks/closed_over_inputs.py``). The vehicle's hand kernel has no such boundaries and
-    gains from the constants (1.25-1.27x): it gets no barrier. Neither does the GPU plan, which
+    benchmarks/closed_over_inputs.py``). The GPU plan gets no barrier: it
     has no fusion boundaries to keep: there the barrier only cost constant folding (H100, 2^20
     members closed over, 1.07-1.10x slower with it: ``python benchmarks/closed_over_inputs.py
     --members 1048576 --steps 238 --scenes heavy_top rigid_body [--order 2]``)."""
@@ -321,11 +307,6 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
               stop_at_failure=False):
     """``_run``'s DEP paths with traced ``n_saved`` (≤ ``capacity``) and ``save_every``;
     ``stop_at_failure`` (the generated step only): :func:`loop_member_nodes`."""
-    if batched == "vehicle":
-        def kernel(system, x0, n):
-            return _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau.name, rtol, max_iterations, n)
-
-        return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
     rule, gammas = composition_coefficients(order)
     if batched == "generated":
         if chunk is not None:

@@ -1,19 +1,26 @@
-"""The batched underwater-vehicle kernel behind ``vj.ensemble(method="batched")`` at ``order=1``
-(2.5× the generated step there): the paper's first-order rule (seed 000 eqs. 73–74 with 88 for
-Cayley, 97 for exp) written by hand on *component arrays* of shape (members,), so every
-operation of a step is an elementwise loop over the members and XLA fuses a whole Newton
-iteration into one vectorised loop. Newton and the node loops are the generated step's
-(:mod:`._member_newton`, :mod:`._member_loops`); only the step itself is written for the
-vehicle."""
+"""The underwater vehicle's batched step written by hand, the peer of the generated step in the
+ensemble benchmarks (``vj.ensemble`` ran it for the vehicle at order 1 until the generated step
+replaced it: nothing behind ``vj.ensemble`` names a model). The paper's first-order rule (seed
+000 eqs. 73–74 with 88 for Cayley, 97 for exp) on *component arrays* of shape (members,), so
+every operation of a step is an elementwise loop over the members; ν is explicit (eq. 74),
+``M⁻¹`` and the right-hand side of eq. 73 are computed once per step, Newton (the engine's
+:func:`~vi_jax.engine._member_newton.newton_members`) runs on ω alone.
+
+    hand_kernel_ensemble(system, x0, h, n_steps, save_every=..., system_axes=None)  # jittable
+"""
 
 import jax
 import jax.numpy as jnp
 
-from ..solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
-from ..lie import _series
-from ._member_loops import loop_member_nodes, scan_member_nodes
-from ._member_newton import newton_members, vmax
-from ._solution import Solution
+import equinox as eqx
+
+from vi_jax import Solution
+from vi_jax.engine._member_loops import scan_member_nodes
+from vi_jax.engine._simulate import _default_rtol
+from vi_jax.engine._member_newton import newton_members, vmax
+from vi_jax.engine._member_split import CHUNK, in_chunks, leaf_axes, member_counts
+from vi_jax.lie import _series
+from vi_jax.solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
 
 
 # --- component-array ("structure of arrays") algebra ------------------------------------
@@ -181,14 +188,6 @@ def _vehicle_batched(system, x0, h, n_saved, save_every, tau, rtol, max_iteratio
     return _vehicle_solution(p, state0, saved, stats, h * save_every, n_members, dtype)
 
 
-def _vehicle_loop(system, x0, h, n_saved, save_every, capacity, tau, rtol, max_iterations, n_members):
-    """The same with traced step counts (``n_saved`` ≤ ``capacity`` nodes of ``save_every``
-    steps): one program for every run length."""
-    p, dtype, state0, worst_step = _vehicle_start(system, x0, h, tau, rtol, max_iterations, n_members)
-    saved, stats = loop_member_nodes(worst_step, state0, _rows, n_saved, save_every, capacity, n_members, dtype)
-    return _vehicle_solution(p, state0, saved, stats, h * save_every, n_members, dtype)
-
-
 def _vehicle_solution(p, state0, saved, stats, dt_saved, n_members, dtype):
     """The Solution from the packed rows of the saved nodes (the initial state prepended)."""
     n_saved = saved.shape[0]
@@ -215,3 +214,20 @@ def _vehicle_solution(p, state0, saved, stats, dt_saved, n_members, dtype):
         newton_residual=members_first(rel),
         result=members_first(result),
     )
+
+
+def hand_kernel_ensemble(system, x0, h, n_steps, *, save_every=1, system_axes=None, x0_axes=0, tau="cayley",
+                         rtol=None, max_newton_iterations=20, checkpoint=True, chunk=CHUNK):
+    """The vehicle at order 1 for every member (leading axis = member), as ``vj.ensemble`` with
+    ``method="batched"`` on CPU ran it: chunks of ``chunk`` members one after another."""
+    dtype = jnp.result_type(x0.g, h)
+    h = jnp.asarray(h, dtype)
+    rtol = _default_rtol(dtype) if rtol is None else float(rtol)
+    axes = (leaf_axes("system_axes", system, system_axes), leaf_axes("x0_axes", x0, x0_axes))
+    (n_members,) = set(member_counts("system_axes", system, axes[0]) + member_counts("x0_axes", x0, axes[1]))
+    dynamic, static = eqx.partition((system, x0), eqx.is_array)
+
+    def kernel(system, x0, n):
+        return _vehicle_batched(system, x0, h, n_steps // save_every, save_every, tau, rtol, max_newton_iterations, n, checkpoint)
+
+    return in_chunks(dynamic, static, axes, n_members, chunk, kernel)
