@@ -3,16 +3,15 @@ ensemble benchmarks (``vj.ensemble`` ran it for the vehicle at order 1 until the
 replaced it: nothing behind ``vj.ensemble`` names a model). The paper's first-order rule (seed
 000 eqs. 73–74 with 88 for Cayley, 97 for exp) on *component arrays* of shape (members,), so
 every operation of a step is an elementwise loop over the members; ν is explicit (eq. 74),
-``M⁻¹`` and the right-hand side of eq. 73 are computed once per step, Newton (the engine's
+``M⁻¹`` is formed once per run and the right-hand side of eq. 73 once per step, Newton (the engine's
 :func:`~vi_jax.engine._member_newton.newton_members`) runs on ω alone.
 
     hand_kernel_ensemble(system, x0, h, n_steps, save_every=..., system_axes=None)  # jittable
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
-
-import equinox as eqx
 
 from vi_jax import Solution
 from vi_jax.engine._member_loops import scan_member_nodes
