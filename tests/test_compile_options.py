@@ -1,5 +1,5 @@
-"""The single-trajectory programs' compile option (XLA:CPU's elemental emitters, per program):
-vi_jax/engine/_compile_options.py."""
+"""Per-program compile options (single trajectories: XLA:CPU's elemental emitters; ensembles'
+CPU plan: ENSEMBLE_OPTIONS): vi_jax/engine/_compile_options.py."""
 
 import jax
 import jax.numpy as jnp
@@ -7,6 +7,7 @@ import numpy as np
 
 import vi_jax as vj
 from vi_jax.engine import _compile_options as co
+from vi_jax.engine import _ensemble
 
 
 def test_an_option_this_xla_does_not_know_is_left_out():
@@ -40,9 +41,17 @@ def test_the_program_follows_the_choice_at_each_call(monkeypatch):
     program = co.single_trajectory_jit(double)
     x = jnp.arange(3.0)
     for choice in (True, False, True, False):
-        monkeypatch.setattr(co, "elemental_emitters_apply", lambda choice=choice: choice)
+        monkeypatch.setattr(co, "options_that_apply", lambda options, choice=choice: dict(options) if choice else {})
         np.testing.assert_array_equal(program(x), 2 * x)
     assert len(traced) == 2  # one program per choice, each reused
+
+
+def test_the_users_xla_flags_keep_their_ensemble_options(monkeypatch):
+    """An option the user's XLA_FLAGS name is left to them; the others still apply."""
+    region, width = co.ENSEMBLE_OPTIONS
+    monkeypatch.setenv("XLA_FLAGS", f"--{region}=false")
+    assert region not in co.options_that_apply(co.ENSEMBLE_OPTIONS)
+    assert (width in co.options_that_apply(co.ENSEMBLE_OPTIONS)) == co.accepted(width, co.ENSEMBLE_OPTIONS[width])
 
 
 def test_simulate_with_the_option_equals_simulate_without(monkeypatch):
@@ -59,3 +68,21 @@ def test_simulate_with_the_option_equals_simulate_without(monkeypatch):
     for other in (traced, closed_over):
         np.testing.assert_allclose(other.q, concrete.q, rtol=1e-11, atol=1e-11)
         np.testing.assert_allclose(other.M, concrete.M, rtol=1e-11, atol=1e-11)
+
+
+def test_ensemble_with_its_options_equals_ensemble_without(monkeypatch):
+    """The options change copies and vector width, not arithmetic: the CPU plan's concrete call
+    with them equals the same call without them bitwise (rigid body and vehicle, order 1, 128
+    members in two groups, 100 steps)."""
+    monkeypatch.setenv("XLA_FLAGS", "")
+    tuned_program = _ensemble._run_loop
+    plain_program = co.cpu_options_jit(tuned_program.__wrapped__, {})
+    for model in (vj.models.RigidBody(), vj.models.UnderwaterVehicle()):
+        x0 = model.initial_state()
+        states = vj.vary(x0, xi=np.asarray(x0.xi) * (1 + 0.1 * np.linspace(0, 1, 128))[:, None])
+        runs = []
+        for program in (tuned_program, plain_program):
+            monkeypatch.setattr(_ensemble, "_run_loop", program)
+            runs.append(vj.ensemble(model, states, 0.01, 100, save_every=4))
+        for a, b in zip(jax.tree.leaves(runs[0]), jax.tree.leaves(runs[1])):
+            np.testing.assert_array_equal(a, b)

@@ -42,7 +42,7 @@ def test_groups_on_cores_equal_one_group(scene, method, order, monkeypatch):
 
     monkeypatch.setattr(_member_groups, "cores", lambda: 3)
     monkeypatch.setattr(_member_groups, "MIN_GROUP", 2)
-    monkeypatch.setattr(_member_groups, "ThreadPoolExecutor", Recording)
+    monkeypatch.setattr(_member_groups, "_workers", Recording)
     grouped = run()
     assert len(workers) == 3 and threading.main_thread() not in workers  # an idle worker may take a second group
     for name in FIELDS:
@@ -56,7 +56,7 @@ def test_one_group_below_the_minimums(few, monkeypatch):
     """Fewer than two groups' worth of members, or a node saved more often than every
     ``MIN_STEPS_PER_NODE`` steps: a plain call, no worker thread."""
     monkeypatch.setattr(_member_groups, "cores", lambda: 8)
-    monkeypatch.setattr(_member_groups, "ThreadPoolExecutor", None)  # would fail if used
+    monkeypatch.setattr(_member_groups, "_workers", None)  # would fail if used
     model = vj.models.RigidBody()
     x0 = model.initial_state()
     n = 2 * _member_groups.MIN_GROUP - (1 if few == "members" else 0)

@@ -1,6 +1,7 @@
-"""How a single trajectory's programs are compiled on XLA:CPU: with its elemental emitters.
+"""How vi_jax's programs are compiled on XLA:CPU: per-program compile options.
 
-The concrete calls' programs of ``vj.simulate`` (the DEP and splitting loops, the node
+Single trajectories get XLA:CPU's elemental emitters. The concrete calls' programs of
+``vj.simulate`` (the DEP and splitting loops, the node
 diagnostics) and of the beam's ``time_march`` are chains of tiny operations; XLA:CPU's elemental
 emitters (``xla_cpu_use_fusion_emitters=False``) compile them in 0.55–0.75× the backend time of
 its default fusion emitters (the vehicle at order 1 1.72–1.79 → 1.10 s, order 2 3.09–3.13 →
@@ -10,10 +11,16 @@ the loop option compile and run within 0.77–1.03×. Ensembles keep the fusion 
 generated step at order 2 runs 1.23–1.40× slower with the elemental ones and compiles 1.18–1.32×
 longer (``python benchmarks/emitters.py [--fast-loops]``, two runs with default XLA flags).
 
-The option goes with each program (``jax.jit``'s ``compiler_options``), not with the process:
-where the user's ``XLA_FLAGS`` name the emitters, that choice stands; on another platform, or
-with an XLA that no longer has the switch (it aborts on the flag, and rejects the compile
-option), the programs compile as XLA's default.
+Ensembles' generated step (``ENSEMBLE_OPTIONS``) gets copy insertion by region analysis and
+512-bit vectors where the CPU has them: the step's fusion boundaries are conditionals, and
+XLA:CPU's default copy insertion copies every member array through them (51 copies a step on
+the rigid body, 9 so; ``python benchmarks/generated_step_hlo.py``); XLA:CPU prefers 256-bit
+vectors by default. Figures: ``python benchmarks/ensemble_compile_options.py [--fast-loops]``.
+
+An option goes with each program (``jax.jit``'s ``compiler_options``), not with the process:
+where the user's ``XLA_FLAGS`` name an option, that choice stands; on another platform, under a
+transformation, or with an XLA that no longer has the option (it aborts on the flag, and rejects
+the compile option), the programs compile without it.
 """
 
 import functools
@@ -28,6 +35,7 @@ from ._placement import target_platform
 
 EMITTERS_FLAG = "xla_cpu_use_fusion_emitters"
 ELEMENTAL_EMITTERS = {EMITTERS_FLAG: False}
+ENSEMBLE_OPTIONS = {"xla_cpu_copy_insertion_use_region_analysis": True, "xla_cpu_prefer_vector_width": 512}
 
 
 @functools.cache
@@ -50,27 +58,41 @@ def _at_top_level() -> bool:
     return find is not None and type(find(())).__name__ == "EvalTrace"
 
 
+def options_that_apply(options: dict) -> dict:
+    """The compile options of ``options`` a program called now gets: none unless it is called
+    outside any transformation and targets the CPU; then those ``XLA_FLAGS`` do not name and
+    this XLA has."""
+    if not (_at_top_level() and target_platform() == "cpu"):
+        return {}
+    flags = os.environ.get("XLA_FLAGS", "")
+    return {k: v for k, v in options.items() if k not in flags and accepted(k, v)}
+
+
 def elemental_emitters_apply() -> bool:
-    """Whether a single-trajectory program called now gets the elemental emitters: it is called
-    outside any transformation, targets the CPU, ``XLA_FLAGS`` do not choose the emitters, and
-    this XLA has the option."""
-    return (
-        _at_top_level()
-        and target_platform() == "cpu"
-        and EMITTERS_FLAG not in os.environ.get("XLA_FLAGS", "")
-        and accepted(EMITTERS_FLAG, False)
-    )
+    """Whether a single-trajectory program called now gets the elemental emitters."""
+    return bool(options_that_apply(ELEMENTAL_EMITTERS))
 
 
-def single_trajectory_jit(fn):
-    """``eqx.filter_jit(fn)``, compiled with XLA:CPU's elemental emitters where
-    :func:`elemental_emitters_apply` (decided at each call: the target follows
-    ``jax.default_device``)."""
-    default = eqx.filter_jit(fn)
-    elemental = eqx.filter_jit(fn, compiler_options=ELEMENTAL_EMITTERS)
+def cpu_options_jit(fn, options: dict):
+    """``eqx.filter_jit(fn)``, compiled with :func:`options_that_apply` to ``options``, decided
+    at each call (the target follows ``jax.default_device``); one program per choice, each
+    reused. ``.lower`` lowers the program of the choice."""
+    programs = {}
+
+    def chosen():
+        key = tuple(sorted(options_that_apply(options).items()))
+        if key not in programs:
+            programs[key] = eqx.filter_jit(fn, compiler_options=dict(key)) if key else eqx.filter_jit(fn)
+        return programs[key]
 
     @functools.wraps(fn)
     def program(*args, **kwargs):
-        return (elemental if elemental_emitters_apply() else default)(*args, **kwargs)
+        return chosen()(*args, **kwargs)
 
+    program.lower = lambda *args, **kwargs: chosen().lower(*args, **kwargs)
     return program
+
+
+def single_trajectory_jit(fn):
+    """:func:`cpu_options_jit` with XLA:CPU's elemental emitters."""
+    return cpu_options_jit(fn, ELEMENTAL_EMITTERS)

@@ -57,6 +57,7 @@ from ..lie._small import batched_products, keeping_dots
 from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, optimistically, scan_program, simulate, validate_scheme
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
+from ._compile_options import ENSEMBLE_OPTIONS, cpu_options_jit
 from ._placement import target_platform
 from ._member_groups import MIN_GROUP, join_groups, member_group, on_cores
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
@@ -138,7 +139,8 @@ def ensemble(
     full one only if some member needs them (as ``vj.simulate``: :func:`~._simulate.optimistically`). Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them. On CPU a concrete call saving a node every 4 steps or more runs the
-    members in one group per core (at least 64 members each), the groups at the same time.
+    members in one group per core (at least 64 members each), the groups at the same time; there
+    the generated step is compiled with ``ENSEMBLE_OPTIONS`` (:mod:`._compile_options`).
     ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
     """
@@ -206,9 +208,10 @@ def ensemble(
             if mesh is None:
                 def program(max_iterations, stop_at_failure):
                     plan = dict(loop_options, max_iterations=max_iterations, stop_at_failure=stop_at_failure)
+                    loop = _run_loop if batched == "generated" else _vmap_loop
                     if options["chunk"] is None:  # an accelerator: the whole batch in every kernel
-                        return _run_loop(dynamic, static, axes, h, *counts, n_members=n_members, **plan)
-                    return on_cores(_run_loop, dynamic, axes, n_members, save_every, static, axes, h, *counts, **plan)
+                        return loop(dynamic, static, axes, h, *counts, n_members=n_members, **plan)
+                    return on_cores(loop, dynamic, axes, n_members, save_every, static, axes, h, *counts, **plan)
 
                 if batched == "generated":  # vj.simulate's plan (figures: _any_failed)
                     sol = optimistically(program, options["max_iterations"], _any_failed)
@@ -302,7 +305,6 @@ def _any_failed(sol):
     return jnp.any(sol.result != SUCCESS)
 
 
-@eqx.filter_jit
 def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capacity, tau, order, rtol, max_iterations, batched, chunk,
               stop_at_failure=False):
     """``_run``'s DEP paths with traced ``n_saved`` (≤ ``capacity``) and ``save_every``;
@@ -328,6 +330,13 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
 
     with batched_products(chunk is not None), keeping_dots():
         return eqx.filter_vmap(one, in_axes=axes, axis_size=n_members)(*eqx.combine(dynamic, static))
+
+
+# The generated step's CPU programs get ENSEMBLE_OPTIONS (figures there; nested in _sharded or on
+# an accelerator, none). The vmap path's do not: its dots and reductions vectorised 512 bits wide
+# round differently.
+_vmap_loop = eqx.filter_jit(_run_loop)
+_run_loop = cpu_options_jit(_run_loop, ENSEMBLE_OPTIONS)
 
 
 def _run_sharded(dynamic, static, axes, h, mesh, n_members, options, counts=()):
