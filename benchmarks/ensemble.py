@@ -9,9 +9,12 @@ repeats; final state returned, so saving costs nothing):
 - ``plain vmap, hand step``: ``jax.vmap`` of the hand-specialised step of tests/hand_vehicle.py
   (eqs. 73–74 with 88, 3×3 matrices, three Newton iterations) — the peer;
 - ``plain vmap, vj.simulate``: ``vj.ensemble(method="vmap")``, the generic engine under vmap;
-- ``batched kernel``: ``vj.ensemble(method="batched")``, members on the vectorised axis (the
-  step generated from the Lagrangian; results/ensemble.json measured the former hand-written
-  vehicle step, now ``_hand_vehicle_kernel.py``).
+- ``batched kernel``: ``vj.ensemble(method="batched")`` under ``jit``, members on the
+  vectorised axis (the step generated from the Lagrangian; one program, one core, XLA's default
+  compile options);
+- ``batched, concrete call``: the same called on concrete inputs, as users call it (one group
+  of members per core at the same time, or the members split over the mesh; the generated step
+  compiled with ``ENSEMBLE_OPTIONS``: ``vi_jax/engine/_compile_options.py``).
 
 XLA configurations: ``default`` (no flags), ``tuned``: XLA_FLAGS
 ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000``, which lets
@@ -93,6 +96,10 @@ def measure(members_list, config):
                     jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, mesh=mesh, throw=False).q[:, -1]),
                     states,
                 ),
+                "batched, concrete call, sharded": (
+                    lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, mesh=mesh, throw=False).q[:, -1],
+                    states,
+                ),
             }
         else:
             impls |= {
@@ -102,6 +109,10 @@ def measure(members_list, config):
                 ),
                 "batched kernel": (
                     jax.jit(lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="batched", throw=False).q[:, -1]),
+                    states,
+                ),
+                "batched, concrete call": (
+                    lambda x, s=n_steps: ensemble(model, x, h, s, save_every=s, method="batched", throw=False).q[:, -1],
                     states,
                 ),
             }

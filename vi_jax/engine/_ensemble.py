@@ -356,7 +356,8 @@ def _run_sharded(dynamic, static, axes, h, mesh, n_members, options, counts=()):
     place = lambda ps, x: jax.device_put(x, NamedSharding(mesh, ps))  # noqa: E731
     dynamic = jax.tree.map(place, in_specs, dynamic, is_leaf=lambda x: isinstance(x, PartitionSpec))
     counts = tuple(place(PartitionSpec(), c) for c in counts)
-    sol = _sharded(
+    program = _sharded if options["batched"] == "generated" else _sharded_vmap
+    sol = program(
         dynamic, place(PartitionSpec(), h), counts, static=static, axes=axes, mesh=mesh, in_specs=in_specs, n_local=padded // n_dev, **options
     )
     if padded == n_members:
@@ -364,7 +365,6 @@ def _run_sharded(dynamic, static, axes, h, mesh, n_members, options, counts=()):
     return jax.tree.map(lambda x: place(PartitionSpec(), x)[:n_members], sol)
 
 
-@eqx.filter_jit
 def _sharded(dynamic, h, counts, *, static, axes, mesh, in_specs, n_local, **options):
     def local(dynamic, h, counts):
         if counts:
@@ -374,6 +374,10 @@ def _sharded(dynamic, h, counts, *, static, axes, mesh, in_specs, n_local, **opt
     spec = PartitionSpec(mesh.axis_names)
     in_specs = (in_specs, PartitionSpec(), tuple(PartitionSpec() for _ in counts))
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=spec, check_vma=False)(dynamic, h, counts)
+
+
+_sharded_vmap = eqx.filter_jit(_sharded)
+_sharded = cpu_options_jit(_sharded, ENSEMBLE_OPTIONS)  # as _run_loop
 
 
 def _run_in_groups(run, dynamic, axes, n_members, n_steps):
