@@ -7,7 +7,8 @@ cheap subexpressions), and the thunks XLA:CPU dispatches one by one with its def
 loop fusions, conditionals (the step's fusion boundaries) and the copies their branches make.
 Where Newton's factors are carried from step to step (the order-2 scenes), a step that takes a
 Jacobian is counted (the refresh conditional's taken branch is its last one, as for the
-boundaries).
+boundaries). Each program is compiled twice: with XLA's default options (as under a caller's
+``jit``) and with ``ENSEMBLE_OPTIONS`` (as a concrete call on the CPU compiles it).
 
     python benchmarks/generated_step_hlo.py
 """
@@ -25,6 +26,7 @@ import jax.numpy as jnp  # noqa: E402
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
 from vi_jax.engine import _ensemble  # noqa: E402
+from vi_jax.engine._compile_options import ENSEMBLE_OPTIONS  # noqa: E402
 
 MEMBERS, STEPS = 1024, 1000
 CASES = [("rigid_body", vj.models.RigidBody, 0.01, 1), ("rigid_body", vj.models.RigidBody, 0.01, 2),
@@ -95,13 +97,19 @@ def main():
         model = scene()
         states = perturbed_states(model.initial_state(), MEMBERS)
         run = jax.jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False).g[:, -1])
-        comps = computations(run.lower(model, states, jnp.asarray(h)).compile().as_text())
+        lowered = run.lower(model, states, jnp.asarray(h))
+        comps = computations(lowered.compile().as_text())
         count = census(comps, step_body(comps))
         thunks = count["fusions"] + count["conditionals"] + count["copies"]
+        tuned = computations(lowered.compile(compiler_options=ENSEMBLE_OPTIONS).as_text())
+        tuned = census(tuned, step_body(tuned))
+        tuned_thunks = tuned["fusions"] + tuned["conditionals"] + tuned["copies"]
         rows.append(dict(scene=name, order=order, operations=count["operations"], fusions=count["fusions"],
-                         conditionals=count["conditionals"], copies=count["copies"], thunks=thunks))
+                         conditionals=count["conditionals"], copies=count["copies"], thunks=thunks,
+                         with_ensemble_options=dict(operations=tuned["operations"], copies=tuned["copies"], thunks=tuned_thunks)))
         print(f"{name:10s} order {order}: {count['operations']:6d} elementwise operations per member-step, "
-              f"{thunks} thunks ({count['fusions']} fusions, {count['conditionals']} conditionals, {count['copies']} copies)", flush=True)
+              f"{thunks} thunks ({count['fusions']} fusions, {count['conditionals']} conditionals, {count['copies']} copies); "
+              f"with ENSEMBLE_OPTIONS {tuned_thunks} thunks ({tuned['copies']} copies)", flush=True)
     write_config_json("generated_step_hlo", False, members_per_chunk=_ensemble.CHUNK, rows=rows)
 
 
