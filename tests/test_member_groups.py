@@ -64,3 +64,14 @@ def test_one_group_below_the_minimums(few, monkeypatch):
     states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.1 * np.random.default_rng(2).normal(size=(n, 3)))
     sol = vj.ensemble(model, states, 0.01, 4 * save_every, save_every=save_every)
     assert sol.g.shape == (n, 5, 3, 3)
+
+
+def test_worker_threads_start_once_per_process(monkeypatch):
+    """Calls reuse one pool of worker threads; a forked child (another pid) gets its own, the
+    parent's threads not existing there."""
+    pool = _member_groups._workers(2)
+    assert _member_groups._workers(2) is pool
+    monkeypatch.setattr(_member_groups.os, "getpid", lambda: -1)
+    child = _member_groups._workers(2)
+    assert child is not pool
+    assert list(child.map(lambda x: 2 * x, [1, 2])) == [2, 4]

@@ -76,8 +76,13 @@ def _joined_on_device(parts, n_members):
     return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:n_members], *parts)
 
 
-@functools.cache
 def _workers(n: int) -> ThreadPoolExecutor:
     """``n`` worker threads, started once for the process: a call's groups then start at once
-    (a fresh pool per call started its threads in 0.5–1 ms, a tenth of a light step's run)."""
+    (a fresh pool per call started its threads in 0.5–1 ms, a tenth of a light step's run). A
+    forked child gets its own (the parent's threads do not exist there)."""
+    return _pool(n, os.getpid())
+
+
+@functools.cache
+def _pool(n: int, pid: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(n, thread_name_prefix="vi_jax-member-group")
