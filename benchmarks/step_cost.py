@@ -10,7 +10,11 @@ The row "blocks of 128 nodes" is the every-node program as it was before ``step_
 peer that justifies the blocks of 4 nodes of the default loop plan; with the loop option both
 rows are the same program). The row "small products as dots" is the every-node program with
 the products of the Lagrangian left as ``dot_general``s (the peer of ``fused_products``,
-``vi_jax/lie/_small.py``).
+``vi_jax/lie/_small.py``). The row "Jacobian eliminated at every solve" is the every-node
+program with Newton's solves by ``dense_solve`` instead of factors computed once (the peer of
+``lu_factor``, ``vi_jax/solvers/_newton.py``); the row "one Newton and two chord steps first"
+is the concrete call's program without Newton's full iterations, which ``vj.simulate`` ran
+first before its Jacobian was factored once (``vj.ensemble``'s generated step still does).
 """
 
 import argparse
@@ -30,6 +34,7 @@ import vi_jax as vj  # noqa: E402
 from vi_jax._saved_nodes import SAVE_BLOCK  # noqa: E402
 from vi_jax.engine import _advance  # noqa: E402
 from vi_jax.lie import _small  # noqa: E402
+from vi_jax.solvers import CHORD_ITERATIONS, _newton  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -64,11 +69,17 @@ def main():
     with mock.patch.object(_small, "_is_small_dot", lambda eqn: False):
         rows["vj.simulate order=1, every node saved + diagnostics, small products as dots"] = time_compiled(dots, model, x0)
     jax.clear_caches()
+    eliminated = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
+    with mock.patch.object(_newton, "lu_factor", lambda A: A), mock.patch.object(_newton, "lu_solve", _newton.dense_solve):
+        rows["vj.simulate order=1, every node saved + diagnostics, Jacobian eliminated at every solve"] = time_compiled(eliminated, model, x0)
+    jax.clear_caches()
     final = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, save_every=args.steps, throw=False))
     rows["vj.simulate order=1, final node only"] = time_compiled(final, model, x0)
     # The call users make: concrete inputs, one program per saved-node capacity (traced step counts).
     concrete = lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False)  # noqa: E731
     rows["vj.simulate order=1, concrete call, every node saved + diagnostics"] = time_compiled(concrete, model, x0)
+    common = lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False, max_newton_iterations=1 + CHORD_ITERATIONS)  # noqa: E731
+    rows["vj.simulate order=1, concrete call, one Newton and two chord steps first"] = time_compiled(common, model, x0)
     start = time.perf_counter()
     jax.block_until_ready(vj.simulate(model, x0, args.h, args.steps + 1, throw=False))
     new_n_steps_s = time.perf_counter() - start

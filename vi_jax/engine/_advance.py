@@ -173,7 +173,7 @@ def _node_block(state, save_every):
     return SAVE_BLOCK
 
 
-def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter, stop_at_failure=False):
+def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter):
     """``n_nodes`` (traced, ≤ ``capacity``) saved nodes of ``save_every`` (traced) steps each;
     ``gammas`` may be a :class:`TracedComposition`.
 
@@ -192,6 +192,5 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
         put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k, 0)  # noqa: E731
         return carry, jax.tree.map(put, saved, carry[0]), jax.tree.map(put, stats, worst)
 
-    succeeded = (lambda carry, k: carry[2].result[k] == SUCCESS) if stop_at_failure else None
-    (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes, succeeded)
+    (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes)
     return state, saved, stats

@@ -144,7 +144,7 @@ def simulate(
                 if progress:
                     sol = _simulate_with_progress(system, x0, h, n_saved, save_every, **options)
                 else:
-                    sol = _simulate_optimistically(system, x0, h, n_saved, save_every, **options)
+                    sol = _simulate_looped(system, x0, h, n_saved, save_every, **options)
     if throw:
         sol = _check_failure(sol, save_every)
     warn_if_meaningless(sol.energy, "simulate")
@@ -184,10 +184,10 @@ def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rto
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
-def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter, stop_at_failure=False):
+def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
     """The DEP run with traced step counts, ``capacity`` saved-node rows (not jitted)."""
     state0 = _initial(system, x0)
-    _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter, stop_at_failure)
+    _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
     return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
 
 
@@ -213,29 +213,24 @@ _advance_loop_jit = single_trajectory_jit(advance_loop)
 _assemble_jit = single_trajectory_jit(_assemble)
 
 
-def _simulate_optimistically(system, x0, h, n_saved, save_every, *, max_iter, **options):
-    """The looped program without Newton's full iterations first (one Newton step and the chord
-    steps: what a step takes from a good guess), stopping at the first node where a step did not
-    converge so; then, only in that case, the program with them. A first call compiles 0.4 s
-    less and a vehicle step costs 13 % less (3.8 → 3.3 µs, default XLA, concrete call of
-    ``python benchmarks/step_cost.py``); a run that needs
-    full iterations (the heavy top from h ≈ 0.02; from 0.01 before Newton started from the
-    extrapolated velocity) pays the first program's compile once and its steps up to that node.
-    Each step's iteration is the full program's either way."""
+def _simulate_looped(system, x0, h, n_saved, save_every, **options):
+    """The looped program (traced step counts) on concrete inputs, its saved rows cut to the run's.
+    It holds Newton's full iterations: with the Jacobian factored once per step
+    (:func:`~vi_jax.solvers.lu_factor`), this program's steps cost 0.8–0.95× those of a
+    program without them (which ``vj.ensemble``'s generated step still runs first,
+    :func:`optimistically`), on the vehicle, the heavy top and the rigid body, orders 1 and 2,
+    for a first call 0.1–0.3 s longer (``python benchmarks/step_cost.py``, its row "one Newton and
+    two chord steps first")."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-
-    def run(max_iter, stop_at_failure):
-        sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved),
-                             max_iter=max_iter, stop_at_failure=stop_at_failure, **options)
-        return first_rows(sol, n_saved + 1)
-
-    return optimistically(run, max_iter, lambda sol: np.any(np.asarray(sol.result) != SUCCESS))
+    sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
+    return first_rows(sol, n_saved + 1)
 
 
 def optimistically(program, max_iterations, failed):
     """``program(max_iterations, stop_at_failure)`` (a concrete run's looped program) first
     without Newton's full iterations, stopping at the first failed node, then, only if
-    ``failed(solution)``, with them (``vj.simulate``; ``vj.ensemble``'s generated step)."""
+    ``failed(solution)``, with them (``vj.ensemble``'s generated step: its first call compiles
+    0.68–0.75× as long, ``python benchmarks/ensemble_first_call.py``)."""
     common = 1 + CHORD_ITERATIONS
     if max_iterations <= common:
         return program(max_iterations, False)

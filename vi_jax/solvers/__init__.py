@@ -8,7 +8,10 @@ from ._newton import (
     RESULT_MESSAGES as RESULT_MESSAGES,
     SINGULAR_DIFFERENCE_MAP as SINGULAR_DIFFERENCE_MAP,
     SUCCESS as SUCCESS,
+    LUFactors as LUFactors,
     NewtonStats as NewtonStats,
     dense_solve as dense_solve,
+    lu_factor as lu_factor,
+    lu_solve as lu_solve,
     newton_root as newton_root,
 )
