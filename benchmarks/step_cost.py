@@ -14,7 +14,9 @@ the products of the Lagrangian left as ``dot_general``s (the peer of ``fused_pro
 program with Newton's solves by ``dense_solve`` instead of factors computed once (the peer of
 ``lu_factor``, ``vi_jax/solvers/_newton.py``); the row "one Newton and two chord steps first"
 is the concrete call's program without Newton's full iterations, which ``vj.simulate`` ran
-first before its Jacobian was factored once (``vj.ensemble``'s generated step still does).
+first before its Jacobian was factored once (``vj.ensemble``'s generated step still does); the
+row "traced save_every" is the concrete call's program with a node loop and a step loop of
+traced lengths, which ``vj.simulate`` ran before every-step runs got blocks of steps.
 """
 
 import argparse
@@ -31,8 +33,8 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from vi_jax._saved_nodes import SAVE_BLOCK  # noqa: E402
-from vi_jax.engine import _advance  # noqa: E402
+from vi_jax._saved_nodes import SAVE_BLOCK, first_rows, saved_capacity  # noqa: E402
+from vi_jax.engine import _advance, _simulate  # noqa: E402
 from vi_jax.lie import _small  # noqa: E402
 from vi_jax.solvers import CHORD_ITERATIONS, _newton  # noqa: E402
 
@@ -40,6 +42,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from _timing import time_compiled, write_json  # noqa: E402
 from hand_vehicle import simulate_hand, vehicle_params  # noqa: E402
+
+
+def _with_traced_save_every(system, x0, h, n_saved, save_every, **options):
+    """``vj.simulate``'s looped program with ``save_every`` traced even when it is 1: a node loop
+    and a step loop of traced lengths (the peer of ``_every_step_in_blocks``)."""
+    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+    sol = _simulate._simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
+    return first_rows(sol, n_saved + 1)
 
 
 def main():
@@ -78,6 +88,8 @@ def main():
     # The call users make: concrete inputs, one program per saved-node capacity (traced step counts).
     concrete = lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False)  # noqa: E731
     rows["vj.simulate order=1, concrete call, every node saved + diagnostics"] = time_compiled(concrete, model, x0)
+    with mock.patch.object(_simulate, "_simulate_looped", _with_traced_save_every):
+        rows["vj.simulate order=1, concrete call, every node saved, traced save_every"] = time_compiled(concrete, model, x0)
     common = lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False, max_newton_iterations=1 + CHORD_ITERATIONS)  # noqa: E731
     rows["vj.simulate order=1, concrete call, one Newton and two chord steps first"] = time_compiled(common, model, x0)
     start = time.perf_counter()

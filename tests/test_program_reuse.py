@@ -37,7 +37,8 @@ with jax.log_compiles():
 def test_runs_of_different_lengths_share_one_program(caplog):
     model = vj.models.RigidBody()
     x0 = model.initial_state()
-    vj.simulate(model, x0, 0.01, 10)  # compiles (or finds) the program
+    vj.simulate(model, x0, 0.01, 10)  # compiles (or finds) the program saving every step
+    vj.simulate(model, x0, 0.01, 20, save_every=2)  # and the one saving every k-th step
     with jax.log_compiles(), caplog.at_level(logging.DEBUG, logger="jax"):
         long = vj.simulate(model, x0, 0.01, 1024)
         sparse = vj.simulate(model, x0, 0.01, 3072, save_every=3)

@@ -101,10 +101,10 @@ def simulate(
     blocks, not with the number of steps; the forward pass is recomputed once);
     ``checkpoint=False`` stores every step instead.
 
-    Called on concrete inputs, one compiled program serves every ``n_steps`` and ``save_every``
-    with the same saved-node capacity (1024, or the next power of two above it): the step
-    counts are traced integers, and so are the sub-step fractions of orders 2, 4 and 6 (one
-    program for the three).
+    Called on concrete inputs, one compiled program serves every ``n_steps`` with the same
+    saved-node capacity (1024, or the next power of two above it) and save layout (every step
+    saved, or every ``save_every``-th for any ``save_every`` > 1): the step counts are traced
+    integers, and so are the sub-step fractions of orders 2, 4 and 6 (one program for the three).
     Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths.
     A conservative run whose energy error says it is meaningless warns (:class:`AccuracyWarning`).
     ``device``: where a concrete run executes — None (the default device; on an accelerator a
@@ -222,7 +222,8 @@ def _simulate_looped(system, x0, h, n_saved, save_every, **options):
     for a first call 0.1–0.3 s longer (``python benchmarks/step_cost.py``, its row "one Newton and
     two chord steps first")."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-    sol = _simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
+    every = 1 if save_every == 1 else count(save_every)  # every step saved: a program of its own
+    sol = _simulate_loop(system, x0, h, count(n_saved), every, capacity=saved_capacity(n_saved), **options)
     return first_rows(sol, n_saved + 1)
 
 

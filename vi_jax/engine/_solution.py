@@ -6,6 +6,7 @@ import jax.numpy as jnp
 
 from .. import _validation as val
 from .._diagnostics import kelvin_noether, kelvin_noether_scale
+from ._components import components, componentwise, stacked
 from .._system import AbstractSystem, State
 from ..solvers import SUCCESS
 
@@ -51,16 +52,34 @@ class Solution(eqx.Module):
         return jnp.all(self.result == SUCCESS)
 
 
+COMPONENTWISE_MATRIX_SIZE = 4  # node_invariants on component arrays up to 4×4 group matrices
+
+
 def node_invariants(system, g, q, M, P, xi, nu):
     """Energy, Kelvin–Noether (a scalar per node for a one-dimensional isotropy algebra) and its
-    scale at nodes (leading axis) with body momenta (M, P) and velocities (ξ, ν)."""
-    n = jax.vmap(system.body_configuration)(g, q)
-    a = jax.vmap(system.body_advected)(g)
-    energy = jax.vmap(system.energy)(xi, n, nu, a)
-    kn = jax.vmap(lambda *s: kelvin_noether(system, *s))(g, q, M, P)
+    scale at nodes (leading axis) with body momenta (M, P) and velocities (ξ, ν).
+
+    For groups of matrices up to 4×4 (SO(3), SE(3), the tops and the vehicle) they are computed
+    on component arrays of shape (nodes,) (:func:`~._components.componentwise`), as the node
+    velocities are: 65,536 vehicle nodes in 1.1 ms, against 10.2 ms for a ``vmap`` of the
+    per-node functions. Larger groups keep the ``vmap``: there the components multiply the
+    traced operations (SO(6): 1.1 s to trace and compile against 0.23 s)."""
+    n_nodes = M.shape[0]
+    params, static = eqx.partition(system, eqx.is_array)
+
+    def per_node(p, g, q, M, P, xi, nu):
+        s = eqx.combine(p, static)
+        n, a = s.body_configuration(g, q), s.body_advected(g)
+        return s.energy(xi, n, nu, a), kelvin_noether(s, g, q, M, P), kelvin_noether_scale(s, g, q, M, P)
+
+    if system.group.matrix_size <= COMPONENTWISE_MATRIX_SIZE:
+        nodes = lambda x: None if x is None else components(x, True)  # noqa: E731
+        outs = componentwise(per_node, n_nodes)(jax.tree.map(lambda x: components(x, False), params), *map(nodes, (g, q, M, P, xi, nu)))
+        energy, kn, kn_scale = (stacked(o, n_nodes).astype(M.dtype) for o in outs)
+    else:
+        energy, kn, kn_scale = jax.vmap(per_node, in_axes=(None, 0, 0, 0, 0, 0, 0))(params, g, q, M, P, xi, nu)
     if kn.shape[-1] == 1:
         kn = kn[..., 0]
-    kn_scale = jax.vmap(lambda *s: kelvin_noether_scale(system, *s))(g, q, M, P)
     return energy, kn, kn_scale
 
 
