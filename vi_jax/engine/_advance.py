@@ -201,7 +201,7 @@ def _every_step_in_blocks(one_step, state, saved, stats, n_nodes):
     steps (the capacity is a multiple of it), each a scan of static length written into the
     buffers at once, as :func:`advance_scan` does; the steps of the last block past ``n_nodes``
     leave the state as it is and their rows repeat the initial state. The step's loop then has
-    a known trip count and no large buffer: the vehicle's looped program ran 0.88–0.94× as long
+    a known trip count and no large buffer: the vehicle's looped program ran 0.87–0.93× as long
     as with a node loop and a step loop of traced lengths, default XLA (python
     benchmarks/step_cost.py, its row "concrete call, every node saved, traced save_every")."""
     block = step_block(state)

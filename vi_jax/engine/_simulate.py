@@ -216,11 +216,10 @@ _assemble_jit = single_trajectory_jit(_assemble)
 def _simulate_looped(system, x0, h, n_saved, save_every, **options):
     """The looped program (traced step counts) on concrete inputs, its saved rows cut to the run's.
     It holds Newton's full iterations: with the Jacobian factored once per step
-    (:func:`~vi_jax.solvers.lu_factor`), this program's steps cost 0.8–0.95× those of a
-    program without them (which ``vj.ensemble``'s generated step still runs first,
-    :func:`optimistically`), on the vehicle, the heavy top and the rigid body, orders 1 and 2,
-    for a first call 0.1–0.3 s longer (``python benchmarks/step_cost.py``, its row "one Newton and
-    two chord steps first")."""
+    (:func:`~vi_jax.solvers.lu_factor`), this program's steps cost 0.79–0.82× those of a
+    program without them on the vehicle (orders 1, 2), 0.90–1.06× on the heavy top and the rigid
+    body (``python benchmarks/newton_plan.py [--fast-loops]``), so it is run alone; ``vj.ensemble``'s
+    generated step still runs the one without them first (:func:`optimistically`)."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
     every = 1 if save_every == 1 else count(save_every)  # every step saved: a program of its own
     sol = _simulate_loop(system, x0, h, count(n_saved), every, capacity=saved_capacity(n_saved), **options)

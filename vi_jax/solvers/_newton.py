@@ -68,7 +68,8 @@ class LUFactors(eqx.Module):
 def lu_factor(A) -> LUFactors:
     """LU factors of a small square ``A`` without pivoting (see :func:`dense_solve` for why no
     pivoting), eliminating one column of the whole matrix at a time: a step's Jacobian is
-    factored in n fused updates (vehicle: 132 → 103 fusions in the step loop's body)."""
+    factored in n fused updates (``python benchmarks/step_cost.py``, its row "Jacobian
+    eliminated at every solve")."""
     n = A.shape[0]
     below = jnp.arange(n)[:, None] > jnp.arange(n)[None, :]
     U, multipliers, inverse = A, [], []
