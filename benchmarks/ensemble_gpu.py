@@ -12,7 +12,8 @@ Rows, written to ``--out`` after every measurement (so a run cut short keeps wha
   ``_hand_vehicle_kernel.py``, the peer), member-steps per second, the final
   node only saved and only small outputs returned (final ξ, converged fraction), h = 0.01 (vehicle) / 0.005 (heavy top), Cayley, members with perturbed
   initial velocities. Each size runs ``min(1000, 2.5e8 / members)`` steps (the rate is per
-  member-step), compiled code only, median of 5.
+  member-step), compiled code only, median of 5; with the most Newton iterations any member took
+  in a step (above 3: Newton's fallback ran, on a GPU for the whole batch).
 - ``peers`` (vehicle order 1, float64, ``--peer-members``): a plain ``jax.vmap`` of the hand-written
   step (tests/hand_vehicle.py), and ``vj.ensemble`` with the CPU plan (chunks of 64 members
   one after another, what every backend ran before) at no more than ``CPU_PLAN_MEMBERS`` members
@@ -78,12 +79,14 @@ def _fusion_boundaries(on):
 
 def _summary(sol):
     """What a timed run returns: every member's final ξ, the fraction of members whose Newton
-    solves all converged, and the first 4 members' final R and ξ (small outputs only)."""
+    solves all converged, the most Newton iterations any member took in a step (above 3: the
+    fallback ran, for the whole batch on a GPU), and the first 4 members' final R and ξ (small
+    outputs only)."""
     import jax.numpy as jnp
 
     from vi_jax.engine._ensemble import member_converged
 
-    return sol.xi[:, -1], jnp.mean(member_converged(sol)), sol.g[:4, -1], sol.xi[:4, -1]
+    return sol.xi[:, -1], jnp.mean(member_converged(sol)), jnp.max(sol.newton_iterations), sol.g[:4, -1], sol.xi[:4, -1]
 
 
 def _member(states, k):
@@ -155,10 +158,11 @@ def measure(args):
                     fn = jax.jit(lambda x, n=n_steps: _summary(_ensemble.ensemble(model, x, h, n, order=order, save_every=n, throw=False)))
                 with _fusion_boundaries(args.boundaries):
                     first, median, _ = time_compiled(fn, states, repeats=5)
-                    last_xi, converged, g4, xi4 = fn(states)
+                    last_xi, converged, iterations, g4, xi4 = fn(states)
                 converged = float(converged)
                 row = dict(kind="ensemble", case=case, fusion_boundaries=args.boundaries, dtype=dtype_name, members=members, steps=n_steps,
-                           compile_and_first_s=first, median_s=median, rate=members * n_steps / median, converged_fraction=converged)
+                           compile_and_first_s=first, median_s=median, rate=members * n_steps / median, converged_fraction=converged,
+                           max_newton_iterations=int(iterations))
                 if not args.extrapolation:
                     row["extrapolated_guess"] = False
                 if members == args.members[0]:
