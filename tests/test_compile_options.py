@@ -86,3 +86,28 @@ def test_ensemble_with_its_options_equals_ensemble_without(monkeypatch):
             runs.append(vj.ensemble(model, states, 0.01, 100, save_every=4))
         for a, b in zip(jax.tree.leaves(runs[0]), jax.tree.leaves(runs[1])):
             np.testing.assert_array_equal(a, b)
+
+
+def test_concrete_calls_trace_newton_without_its_gradient_rule(monkeypatch):
+    """A concrete call's programs (concrete inputs: nothing can differentiate them) trace no
+    ``custom_root``, whose tangent solve would be traced for nothing; under ``jit`` the same
+    functions keep it (gradient tests: tests/test_gradients.py). The values are the same: the
+    concrete runs equal the traced ones to round-off (different loop programs: 300 steps of a
+    few hundred flops, a few hundred ulps per step at most)."""
+    bound = []
+    real = jax.lax.custom_root
+    monkeypatch.setattr(jax.lax, "custom_root", lambda *args, **kwargs: bound.append(1) or real(*args, **kwargs))
+    jax.clear_caches()  # trace the programs anew
+    model = vj.models.HeavyTop()
+    x0 = model.initial_state()
+    states = vj.vary(x0, xi=np.asarray(x0.xi) * (1 + 0.1 * np.linspace(0, 1, 8))[:, None])
+    concrete = vj.simulate(model, x0, 0.01, 300, order=2)
+    concrete_members = vj.ensemble(model, states, 0.01, 300, order=2, save_every=4)
+    assert bound == []
+    traced = jax.jit(lambda x: vj.simulate(model, x, 0.01, 300, order=2))(x0)
+    traced_members = jax.jit(lambda s: vj.ensemble(model, s, 0.01, 300, order=2, save_every=4))(states)
+    assert bound
+    for a, b in ((concrete, traced), (concrete_members, traced_members)):
+        for field in ("g", "xi", "M", "energy"):
+            np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=1e-11, atol=1e-11)
+    jax.clear_caches()

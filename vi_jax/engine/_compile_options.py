@@ -31,6 +31,7 @@ import jax
 import jax.extend
 import numpy as np
 
+from ..solvers._newton import without_implicit_gradients
 from ._placement import target_platform
 
 EMITTERS_FLAG = "xla_cpu_use_fusion_emitters"
@@ -73,16 +74,32 @@ def elemental_emitters_apply() -> bool:
     return bool(options_that_apply(ELEMENTAL_EMITTERS))
 
 
+def _forward_only(fn):
+    """``fn`` traced under :func:`~vi_jax.solvers._newton.without_implicit_gradients`."""
+
+    @functools.wraps(fn)
+    def traced(*args, **kwargs):
+        with without_implicit_gradients():
+            return fn(*args, **kwargs)
+
+    return traced
+
+
 def cpu_options_jit(fn, options: dict):
     """``eqx.filter_jit(fn)``, compiled with :func:`options_that_apply` to ``options``, decided
     at each call (the target follows ``jax.default_device``); one program per choice, each
-    reused. ``.lower`` lowers the program of the choice."""
+    reused. Called outside any transformation (concrete inputs: nothing can differentiate it)
+    the program is traced without Newton's implicit-function rule, a program of its own (a
+    ``jit`` under a transformation traces ``fn`` with the rule). ``.lower`` lowers the program
+    of the choice."""
     programs = {}
 
     def chosen():
-        key = tuple(sorted(options_that_apply(options).items()))
+        top = _at_top_level()
+        key = (top, tuple(sorted(options_that_apply(options).items())))
         if key not in programs:
-            programs[key] = eqx.filter_jit(fn, compiler_options=dict(key)) if key else eqx.filter_jit(fn)
+            body = _forward_only(fn) if top else fn
+            programs[key] = eqx.filter_jit(body, compiler_options=dict(key[1])) if key[1] else eqx.filter_jit(body)
         return programs[key]
 
     @functools.wraps(fn)

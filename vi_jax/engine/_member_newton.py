@@ -2,7 +2,7 @@
 are a tuple of arrays over the members, nothing couples two members. The iteration is
 ``vj.simulate``'s (:func:`vi_jax.solvers.newton_root`): one Newton step, chord steps, a check,
 masked fallback Newton steps while some member has not converged, a final correction;
-implicit-function gradients through ``jax.lax.custom_root``.
+implicit-function gradients through ``jax.lax.custom_root`` (``implicit_root``).
 
 Carried factors (the generated step, one step after another): the first Newton step may use
 the LU factors of an earlier step's Jacobian instead of a fresh one — chord steps from the
@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from ..solvers import CHORD_ITERATIONS, MAX_ITERATIONS, NONFINITE, SUCCESS
+from ..solvers._newton import implicit_root
 from ._components import fold_mul, fold_sub, from_member_arrays, member_arrays
 
 
@@ -350,7 +351,7 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
     def tangent_solve(linear, y):
         return lu_solve(lu(columns(linear, y)), y)
 
-    z, aux = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
+    z, aux = implicit_root(residual_only, z0, solve, tangent_solve)
     i, rel, result = aux[:3]
     stats = jax.lax.stop_gradient((i.astype(jnp.int32), rel, result.astype(jnp.int8)))
     if not carrying:

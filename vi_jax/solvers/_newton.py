@@ -8,6 +8,8 @@ unknowns of a step this is far cheaper inside ``lax.scan`` on CPU than a LAPACK 
 also across the fallback's conditional, where XLA cannot share an elimination.
 """
 
+import contextlib
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -111,6 +113,34 @@ def traced_once(fn, z):
     return traced_with_fused_products(fn, z)
 
 
+_IMPLICIT_GRADIENTS = True
+
+
+@contextlib.contextmanager
+def without_implicit_gradients():
+    """While active, the Newton solves traced below (:func:`newton_root`, the engine's
+    ``newton_members``) run their iterations without ``jax.lax.custom_root``'s implicit-function
+    rule. Tracing that rule traces the tangent solve too (the residual linearised, its Jacobian
+    factored) although a program that nothing differentiates never runs it: for a concrete
+    call's programs only (:func:`vi_jax.engine._compile_options.cpu_options_jit`), whose inputs
+    are concrete. The same values; the vehicle's first ``vj.simulate`` call 2.30–2.39 →
+    2.00–2.01 s, all of it tracing (``python benchmarks/compile_time.py``: README, "Compiling")."""
+    global _IMPLICIT_GRADIENTS
+    previous, _IMPLICIT_GRADIENTS = _IMPLICIT_GRADIENTS, False
+    try:
+        yield
+    finally:
+        _IMPLICIT_GRADIENTS = previous
+
+
+def implicit_root(f, z0, solve, tangent_solve):
+    """``jax.lax.custom_root(f, z0, solve, tangent_solve, has_aux=True)``; ``solve(f, z0)``
+    under :func:`without_implicit_gradients`."""
+    if not _IMPLICIT_GRADIENTS:
+        return solve(f, z0)
+    return jax.lax.custom_root(f, z0, solve, tangent_solve, has_aux=True)
+
+
 class NewtonStats(eqx.Module):
     iterations: jax.Array
     residual: jax.Array  # ‖F(z) − target‖∞ / scale at the returned z
@@ -183,6 +213,6 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
     def tangent_solve(g, y):
         return lu_solve(lu_factor(jax.jacfwd(g)(jnp.zeros_like(y))), y)
 
-    z, stats = jax.lax.custom_root(residual_only, z0, solve, tangent_solve, has_aux=True)
+    z, stats = implicit_root(residual_only, z0, solve, tangent_solve)
     stats = NewtonStats(stats.iterations.astype(jnp.int32), stats.residual, stats.result.astype(jnp.int8))
     return z, jax.lax.stop_gradient(stats)
