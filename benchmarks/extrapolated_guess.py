@@ -5,7 +5,13 @@ alternately (median of 7 runs each), with the share of member-steps that needed 
 fallback iterations (more than one Newton and two chord steps) in a 64-member × 300-step run
 with every node saved.
 
-    python benchmarks/extrapolated_guess.py [--fast-loops]
+``--whole-batch``: the accelerator plan run on the CPU (every member in every kernel, no fusion
+boundaries: what a GPU runs), 262,144 members × 50 steps, the GPU benchmark's cases
+(``ensemble_gpu.py``: the vehicle at order 1, the heavy top at orders 1 and 2); on an H200 the
+extrapolation cost 1.05–1.67× there at 2²⁰ members (``--no-extrapolation``), and this asks how
+much of that the CPU sees.
+
+    python benchmarks/extrapolated_guess.py [--fast-loops] [--whole-batch]
 """
 
 import argparse
@@ -13,6 +19,7 @@ import argparse
 from _timing import parse_args_with_fast_loops, time_alternately, write_config_json
 
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+PARSER.add_argument("--whole-batch", action="store_true", help="the accelerator plan (every member in every kernel), on the CPU")
 ARGS = parse_args_with_fast_loops(PARSER)
 
 import jax  # noqa: E402
@@ -23,7 +30,7 @@ import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
-from vi_jax.engine import _generated_step  # noqa: E402
+from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
 
 MEMBERS, STEPS, REPEATS = 1024, 1000, 7
 VARIANTS = {"last xi": False, "extrapolated": True}
@@ -32,6 +39,11 @@ CASES = [("rigid_body", vj.models.RigidBody, 0.01, 2), ("heavy_top", vj.models.H
          ("heavy_top", vj.models.HeavyTop, 0.005, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2),
          ("heavy_top", vj.models.HeavyTop, 0.01, 1), ("heavy_top", vj.models.HeavyTop, 0.01, 2),
          ("heavy_top", vj.models.HeavyTop, 0.02, 2), ("rigid_body", vj.models.RigidBody, 0.05, 2)]
+if ARGS.whole_batch:
+    MEMBERS, STEPS = 262_144, 50
+    CASES = [("vehicle", vj.models.UnderwaterVehicle, 0.01, 1), ("heavy_top", vj.models.HeavyTop, 0.005, 1),
+             ("heavy_top", vj.models.HeavyTop, 0.005, 2)]
+    _ensemble.target_platform = lambda mesh=None: "gpu"
 
 
 def fallback_share(model, h, order):
@@ -71,7 +83,8 @@ def main():
                   + ", ".join(f"{100 * s:.1f}%" for s in share.values()) + f" of member-steps; max |Δg| {diff:.1e}", flush=True)
     finally:
         _generated_step.PREDICT = True
-    write_config_json("extrapolated_guess", ARGS.fast_loops, rows=rows)
+    name = "extrapolated_guess_whole_batch" if ARGS.whole_batch else "extrapolated_guess"
+    write_config_json(name, ARGS.fast_loops, members=MEMBERS, steps=STEPS, rows=rows)
 
 
 if __name__ == "__main__":
