@@ -1,7 +1,7 @@
 """The first concrete call of ``vj.ensemble`` through the generated step (64 members, 1000
 steps, final node saved, Cayley, order 2): with the optimistic plan (a program without Newton's
 full iterations first, the full program only where some member needed them:
-``vi_jax.engine._simulate.optimistically``) and with the full program alone. Each call runs in a fresh
+``vi_jax.engine._ensemble.optimistically``) and with the full program alone. Each call runs in a fresh
 process (nothing compiled before it), the two plans alternately, three times each; the median
 first call (trace + compile + run), its backend compile time (JAX's monitoring events) and the
 second call are reported. The heavy top at h = 0.02 needs the full iterations (a run that pays

@@ -38,17 +38,15 @@ def main():
         for order in (1, 2):
             for every in (STEPS, 100, 1):
                 calls = {
-                    "ensemble, one member": lambda: vj.ensemble(model, one, h, STEPS, order=order, save_every=every).q,
-                    "simulate": lambda: vj.simulate(model, x0, h, STEPS, order=order, save_every=every).q,
+                    "ensemble, one member": lambda: vj.ensemble(model, one, h, STEPS, order=order, save_every=every),
+                    "simulate": lambda: vj.simulate(model, x0, h, STEPS, order=order, save_every=every),
                 }
-                first = {}
+                first, runs = {}, {}
                 for label, call in calls.items():  # compile (a program per save layout) and warm up
                     start = time.perf_counter()
-                    jax.block_until_ready(call())
+                    runs[label] = jax.block_until_ready(call())
                     first[label] = time.perf_counter() - start
-                ens = vj.ensemble(model, one, h, STEPS, order=order, save_every=every)
-                sim = vj.simulate(model, x0, h, STEPS, order=order, save_every=every)
-                diff = float(np.max(np.abs(np.asarray(ens.g[0]) - np.asarray(sim.g))))
+                diff = float(np.max(np.abs(np.asarray(runs["ensemble, one member"].g[0]) - np.asarray(runs["simulate"].g))))
                 seconds = time_alternately(calls, REPEATS)
                 ratio = seconds["ensemble, one member"] / seconds["simulate"]
                 rows.append(dict(scene=name, order=order, save_every=every, seconds=seconds, ratio=ratio, max_abs_g_difference=diff,

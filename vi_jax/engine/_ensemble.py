@@ -54,8 +54,8 @@ from .._accuracy import warn_if_meaningless
 from .._precision import full_precision
 from ..discrete._composition import composition_coefficients
 from ..lie._small import batched_products, keeping_dots
-from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, optimistically, scan_program, simulate, validate_scheme
-from ..solvers import RESULT_MESSAGES, SUCCESS
+from ._simulate import NewtonFailure, Solution, _default_rtol, loop_program, scan_program, simulate, validate_scheme
+from ..solvers import CHORD_ITERATIONS, RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ._compile_options import ENSEMBLE_OPTIONS, cpu_options_jit
 from ._placement import target_platform
@@ -136,7 +136,7 @@ def ensemble(
     inputs (no ``mesh``) the DEP paths take the step counts as traced integers: one compiled
     program per saved-node capacity (the power of two ≥ the saved nodes), not per ``n_steps``;
     through the generated step, a program without Newton's full iterations runs first and the
-    full one only if some member needs them (as ``vj.simulate``: :func:`~._simulate.optimistically`). Members
+    full one only if some member needs them (:func:`optimistically`). Members
     whose energy error says their run is meaningless get one :class:`~vi_jax.AccuracyWarning`
     that counts them. On CPU a concrete call saving a node every 4 steps or more runs the
     members in one group per core (at least 64 members each), the groups at the same time; there
@@ -287,6 +287,18 @@ def _first_nodes(sol, n):
     """The first ``n`` nodes of every member, sliced on the device (an ensemble's rows can be
     gigabytes: no trip through the host, at a small compile per new ``n``)."""
     return jax.tree.map(lambda x: x[:, :n], sol)
+
+
+def optimistically(program, max_iterations, failed):
+    """``program(max_iterations, stop_at_failure)`` (a concrete run's looped program) first
+    without Newton's full iterations, stopping at the first failed node, then, only if
+    ``failed(solution)``, with them (the generated step: its first call compiles 0.71–0.78× as
+    long where no member needs them, ``python benchmarks/ensemble_first_call.py``)."""
+    common = 1 + CHORD_ITERATIONS
+    if max_iterations <= common:
+        return program(max_iterations, False)
+    sol = program(common, True)
+    return program(max_iterations, False) if failed(sol) else sol
 
 
 def ensemble_capacity(n_saved: int) -> int:

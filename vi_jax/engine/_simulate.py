@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
-from ..solvers import CHORD_ITERATIONS, RESULT_MESSAGES, SUCCESS
+from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
 from ..discrete import composition_coefficients, legendre_initial_state
 from ..discrete._composition import ORDERS
@@ -219,23 +219,11 @@ def _simulate_looped(system, x0, h, n_saved, save_every, **options):
     (:func:`~vi_jax.solvers.lu_factor`), this program's steps cost 0.79–0.82× those of a
     program without them on the vehicle (orders 1, 2), 0.90–1.06× on the heavy top and the rigid
     body (``python benchmarks/newton_plan.py [--fast-loops]``), so it is run alone; ``vj.ensemble``'s
-    generated step still runs the one without them first (:func:`optimistically`)."""
+    generated step still runs the one without them first (:func:`~._ensemble.optimistically`)."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
     every = 1 if save_every == 1 else count(save_every)  # every step saved: a program of its own
     sol = _simulate_loop(system, x0, h, count(n_saved), every, capacity=saved_capacity(n_saved), **options)
     return first_rows(sol, n_saved + 1)
-
-
-def optimistically(program, max_iterations, failed):
-    """``program(max_iterations, stop_at_failure)`` (a concrete run's looped program) first
-    without Newton's full iterations, stopping at the first failed node, then, only if
-    ``failed(solution)``, with them (``vj.ensemble``'s generated step: its first call compiles
-    0.68–0.75× as long, ``python benchmarks/ensemble_first_call.py``)."""
-    common = 1 + CHORD_ITERATIONS
-    if max_iterations <= common:
-        return program(max_iterations, False)
-    sol = program(common, True)
-    return program(max_iterations, False) if failed(sol) else sol
 
 
 def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, gammas, rtol, max_iter):
