@@ -3,7 +3,7 @@ should run. Meant for a GPU machine; runs anywhere (small sizes on a CPU as a sm
 
     python benchmarks/ensemble_gpu.py [--members 1024 32768 1048576] [--dtypes float64 float32]
         [--cases vehicle1 vehicle1_hand heavy_top2 heavy_top1 vehicle2] [--budget-s 520] [--out FILE]
-        [--no-extrapolation]
+        [--extrapolation]
 
 Rows, written to ``--out`` after every measurement (so a run cut short keeps what it measured):
 
@@ -20,8 +20,11 @@ Rows, written to ``--out`` after every measurement (so a run cut short keeps wha
   (its chunks run one after another: at 32,768 members its timing alone outran a 600 s call).
 - ``peers`` (every generated case, float64, ``--peer-members``): ``method="vmap"``, a plain
   ``jax.vmap`` of ``vj.simulate``'s program.
-- ``--no-extrapolation``: the generated step starts Newton from ξ_k instead of 2ξ_k − ξ_{k−1}
-  (``_generated_step.PREDICT``; the carry holds 6 fewer arrays on the vehicle), rows marked.
+- ``--extrapolation``: the generated step starts Newton from 2ξ_k − ξ_{k−1} instead of ξ_k
+  (``_generated_step.PREDICT_ON_ACCELERATORS``; the accelerator plan's default since the
+  speculative step, ``gpu_step_profile.py``), rows marked ``extrapolated_guess``. Rows of earlier
+  runs: ``extrapolated_guess: false`` marks a run of the old ``--no-extrapolation``; unmarked rows
+  of those runs started from the extrapolation, as the plan then did.
 - ``agreement``: per case and dtype, the first 4 members' final states against ``vj.simulate``
   on the host CPU in float64 (max abs difference of R and ξ).
 - ``single`` (before the peers): one trajectory, ``vj.simulate`` of the vehicle at order 1, µs per step on the
@@ -123,10 +126,10 @@ def measure(args):
     from hand_vehicle import make_step, vehicle_params
 
     out = dict(device=str(jax.devices()[0]), backend=jax.default_backend(), jax=jax.__version__, rows=[])
-    if not args.extrapolation:
+    if args.extrapolation:
         from vi_jax.engine import _generated_step
 
-        _generated_step.PREDICT = False
+        _generated_step.PREDICT_ON_ACCELERATORS = True
     start = time.perf_counter()
 
     def save():
@@ -163,8 +166,7 @@ def measure(args):
                 row = dict(kind="ensemble", case=case, fusion_boundaries=args.boundaries, dtype=dtype_name, members=members, steps=n_steps,
                            compile_and_first_s=first, median_s=median, rate=members * n_steps / median, converged_fraction=converged,
                            max_newton_iterations=int(iterations))
-                if not args.extrapolation:
-                    row["extrapolated_guess"] = False
+                row["extrapolated_guess"] = args.extrapolation
                 if members == args.members[0]:
                     ref = []
                     model64, _ = _scene(name, jnp.float64)
@@ -284,8 +286,8 @@ def main():
     parser.add_argument("--budget-s", type=float, default=520.0, help="start no new measurement after this")
     parser.add_argument("--boundaries", action="store_true", help="keep the generated step's fusion boundaries on a GPU too")
     parser.add_argument("--no-single", dest="single", action="store_false")
-    parser.add_argument("--no-extrapolation", dest="extrapolation", action="store_false",
-                        help="the generated step starts Newton from xi_k (no 2 xi_k - xi_{k-1})")
+    parser.add_argument("--extrapolation", action="store_true",
+                        help="the generated step starts Newton from 2 xi_k - xi_{k-1} (the accelerator plan's default: xi_k)")
     parser.add_argument("--single-steps", type=int, default=5000)
     parser.add_argument("--single-child", type=int, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--out", default=str(HERE / "results" / "ensemble_gpu.json"))

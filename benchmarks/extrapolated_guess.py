@@ -8,8 +8,8 @@ with every node saved.
 ``--whole-batch``: the accelerator plan run on the CPU (every member in every kernel, no fusion
 boundaries: what a GPU runs), 262,144 members × 50 steps, the GPU benchmark's cases
 (``ensemble_gpu.py``: the vehicle at order 1, the heavy top at orders 1 and 2); on an H200 the
-extrapolation cost 1.05–1.67× there at 2²⁰ members (``--no-extrapolation``), and this asks how
-much of that the CPU sees.
+extrapolation cost 1.05–1.67× there at 2²⁰ members (``ensemble_gpu.py``), and this asks how
+much of that the CPU sees (the accelerator plan now starts from ξ_k: ``gpu_step_profile.py``).
 
     python benchmarks/extrapolated_guess.py [--fast-loops] [--whole-batch]
 """
@@ -54,10 +54,11 @@ def fallback_share(model, h, order):
 
 
 def compiled(model, states, h, order, predict):
-    """The run compiled ahead of time with ``PREDICT = predict`` (caches cleared first: the
-    switch is read at trace time), its fallback share and final attitudes."""
+    """The run compiled ahead of time with the extrapolated guess or not (``PREDICT``, or
+    ``PREDICT_ON_ACCELERATORS`` with ``--whole-batch``; caches cleared first: the switches are
+    read at trace time), its fallback share and final attitudes."""
     jax.clear_caches()
-    _generated_step.PREDICT = predict
+    _generated_step.PREDICT = _generated_step.PREDICT_ON_ACCELERATORS = predict
     run = jax.jit(lambda m, s, h: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False))
     run = run.lower(model, states, h).compile()
     g = np.asarray(jax.block_until_ready(run(model, states, h)).g[:, -1])
@@ -82,7 +83,7 @@ def main():
                   + f" member-steps/s ({rows[-1]['speedup']:.2f}x); fallback in "
                   + ", ".join(f"{100 * s:.1f}%" for s in share.values()) + f" of member-steps; max |Δg| {diff:.1e}", flush=True)
     finally:
-        _generated_step.PREDICT = True
+        _generated_step.PREDICT, _generated_step.PREDICT_ON_ACCELERATORS = True, False
     name = "extrapolated_guess_whole_batch" if ARGS.whole_batch else "extrapolated_guess"
     write_config_json(name, ARGS.fast_loops, members=MEMBERS, steps=STEPS, rows=rows)
 

@@ -257,6 +257,68 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
 
 
+def _accelerator_plan_runs(monkeypatch, run, speculative):
+    """``run()`` on the accelerator plan, with the speculative step or with Newton's fallback
+    inside the step, traced afresh."""
+    from vi_jax.engine import _ensemble, _generated_step
+
+    monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None: "gpu")
+    monkeypatch.setattr(_generated_step, "SPECULATIVE", speculative)
+    jax.clear_caches()  # the switches are read at trace time
+    try:
+        return run()
+    finally:
+        jax.clear_caches()
+
+
+def _hard_heavy_top_states():
+    """Heavy top members at h = 0.02 with velocities 0.5·N(0, 1) off: a quarter of the
+    member-steps need Newton's fallback iterations."""
+    system = vj.models.HeavyTop()
+    x0 = system.initial_state()
+    return system, vj.vary(x0, xi=np.asarray(x0.xi) + 0.5 * np.random.default_rng(0).normal(size=(16, 3)))
+
+
+def test_speculative_accelerator_step_equals_the_step_with_its_fallback(monkeypatch):
+    """The accelerator plan's speculative step (every member without Newton's fallback, then
+    the whole step again where one member needs it; two steps per loop iteration, 9 steps per
+    node: an odd remainder) against the step with the fallback inside, under ``jit``: steps that
+    fell back and steps that did not, equal to Newton's tolerance 64ε per step (a member may stop
+    one iteration apart at the tolerance's edge)."""
+    system, states = _hard_heavy_top_states()
+    n_steps = 180
+    run = jax.jit(lambda s: vj.ensemble(system, s, 0.02, n_steps, save_every=9, throw=False))
+    ours, theirs = (_accelerator_plan_runs(monkeypatch, lambda: run(states), spec) for spec in (True, False))
+    iterations = np.asarray(theirs.newton_iterations)[:, 1:]
+    assert 0.05 < np.mean(iterations > 3) < 0.95  # nodes with and without the fallback
+    assert np.all(np.asarray(ours.result) == 0) and np.all(np.asarray(theirs.result) == 0)
+    assert np.max(np.abs(np.asarray(ours.newton_iterations)[:, 1:] - iterations)) <= 1
+    rtol = 4 * 64 * EPS * np.sqrt(n_steps)
+    for field in ("g", "xi", "M", "energy"):
+        a, b = np.asarray(getattr(ours, field)), np.asarray(getattr(theirs, field))
+        assert np.max(np.abs(a - b)) <= rtol * max(np.max(np.abs(b)), 1.0), field
+
+
+def test_speculative_accelerator_step_differentiates_as_the_step_with_its_fallback(monkeypatch):
+    """Reverse mode through the speculative step (a loop of traced length, which has no reverse
+    mode of its own) is reverse mode through the step with the fallback inside, for the scene's
+    parameters and h alike; and it matches central differences in h."""
+    system, states = _hard_heavy_top_states()
+
+    def loss(system, h):
+        sol = vj.ensemble(system, states, h, 40, save_every=20, throw=False)
+        return jnp.sum(sol.xi[:, -1] ** 2) + jnp.sum(sol.g[:, -1])
+
+    grad = eqx.filter_jit(eqx.filter_grad(loss))
+    ours, theirs = (_accelerator_plan_runs(monkeypatch, lambda: grad(system, 0.02), spec) for spec in (True, False))
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(theirs)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12)
+    d_h = _accelerator_plan_runs(monkeypatch, lambda: jax.jit(jax.grad(lambda h: loss(system, h)))(0.02), True)
+    eps = 1e-6
+    central = (loss(system, 0.02 + eps) - loss(system, 0.02 - eps)) / (2 * eps)
+    np.testing.assert_allclose(d_h, central, rtol=1e-6)
+
+
 def test_only_the_cpu_plan_hides_the_inputs_behind_a_barrier(monkeypatch):
     """Under a caller's trace the CPU plan puts the scene and h behind an optimisation barrier
     (its fusion boundaries would fold away on constants); the accelerator plan has no boundaries

@@ -16,7 +16,10 @@ tests/test_generated_step.py):
   ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
   shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
   the heavy top at order 1: 2.47 G member-steps/s in float64 at 2²⁰ members; a chunked plan ran
-  50× slower; README, ``benchmarks/ensemble_gpu.py``). A concrete call on CPU (no ``mesh``, a node saved every 4 steps or more)
+  50× slower; README, ``benchmarks/ensemble_gpu.py``), with a speculative step under ``jit``
+  (:func:`~._generated_step._speculative`: the fallback iterations rerun the whole step, for
+  the batch, only where a member needs them; H200, the vehicle at order 1: 3.09 G in float64,
+  ``benchmarks/gpu_step_profile.py``). A concrete call on CPU (no ``mesh``, a node saved every 4 steps or more)
   splits the members into one group per core (:func:`~._member_groups.on_cores`), run at the
   same time from worker threads: XLA:CPU runs one program's loops on one core.
 - ``method="vmap"`` — ``jax.vmap`` of ``vj.simulate``'s DEP program. On CPU its small products

@@ -11,9 +11,10 @@ members, so XLA fuses a whole Newton iteration into one loop over the members. N
 Newton step, two chord steps, a check, masked fallback iterations while a member has not
 converged, a final correction, implicit-function gradients; on the CPU plan, where the
 Jacobian costs most, the first step may be a chord step on factors carried from an earlier step
-(:func:`make_step`, :func:`~._member_newton.next_periods`). A single-stage step (orders 1, 2)
-starts Newton from the extrapolation 2ξ_k − ξ_{k−1}, as ``vj.simulate`` does
-(:func:`_extrapolated`). A failed step turns the member's state to NaN, as ``vj.simulate`` does.
+(:func:`make_step`, :func:`~._member_newton.next_periods`). On the CPU plan a single-stage step
+(orders 1, 2) starts Newton from the extrapolation 2ξ_k − ξ_{k−1}, as ``vj.simulate`` does
+(:func:`_extrapolated`); the accelerator plan starts from ξ_k and runs the step speculatively
+(:func:`_speculative`). A failed step turns the member's state to NaN, as ``vj.simulate`` does.
 """
 
 import equinox as eqx
@@ -22,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..discrete._dep import StepState, StepStats, _join, _split, discrete_momenta, legendre_initial_state
-from ..solvers import SINGULAR_DIFFERENCE_MAP, SUCCESS
+from ..solvers import CHORD_ITERATIONS, SINGULAR_DIFFERENCE_MAP, SUCCESS
 from ._advance import extrapolation, no_previous
 from ._simulate import assemble
 from ..lie._small import batched_products
@@ -70,6 +71,15 @@ CARRY_COST = 4
 # (False, the benchmark's switch): _extrapolated.
 PREDICT = True
 LIGHT_OPERATIONS = 1000  # members_per_chunk
+# The accelerator plan (python benchmarks/gpu_step_profile.py, H200, 2^20 members): the
+# speculative step (_speculative; False: the fallback inside the step), two steps per iteration
+# of the step loop (ACCELERATOR_UNROLL: a step's result then needs no copy into the loop's
+# carry), and Newton from ξ_k (PREDICT_ON_ACCELERATORS): the vehicle at order 1 ran 1.53x /
+# 2.38x faster (float64 / float32) so than with the fallback inside the step and the
+# extrapolation, 1.77x / 2.52x faster than the same plan with the extrapolation.
+SPECULATIVE = True
+ACCELERATOR_UNROLL = 2
+PREDICT_ON_ACCELERATORS = False
 
 
 class _Layout(eqx.Module):
@@ -281,6 +291,38 @@ def _extrapolated(one_step):
     return step
 
 
+def _speculative(one_step_of, params, h, max_iterations):
+    """The accelerator plan's step: every member's step without Newton's fallback iterations,
+    then, only if a member did not succeed so, the whole step again with them (the same values
+    either way): on a GPU the common path needs nothing of Newton's iterations kept in memory
+    for the fallback (the step's inputs are), and a loop run zero or one times updates its
+    result in place, where a conditional would copy the state (``python
+    benchmarks/gpu_step_profile.py``). Differentiated as the step with the fallback inside
+    (a loop of traced length has no reverse mode); the scene's parameters and h are explicit
+    inputs of the rule."""
+    is_components = lambda x: isinstance(x, np.ndarray) and x.dtype == object  # noqa: E731
+    leaves, treedef = jax.tree.flatten(params, is_leaf=is_components)
+    shapes = [x.shape if is_components(x) else None for x in leaves]
+    flat = [list(x.reshape(-1)) if is_components(x) else x for x in leaves]
+
+    def rebuild(flat):
+        return jax.tree.unflatten(treedef, [x if s is None else from_member_arrays(x, s) for x, s in zip(flat, shapes)])
+
+    def full(state, flat, h):
+        return one_step_of(rebuild(flat), h, max_iterations)[0](state)
+
+    @jax.custom_jvp
+    def step(state, flat, h):
+        new, stats = one_step_of(rebuild(flat), h, 1 + CHORD_ITERATIONS)[0](state)
+        failed = jnp.any(stats[2] != SUCCESS)
+        rerun = lambda c: (jnp.zeros_like(failed),) + full(state, flat, h)  # noqa: E731
+        _, new, stats = jax.lax.while_loop(lambda c: c[0], rerun, (failed, new, stats))
+        return new, stats
+
+    step.defjvp(lambda primals, tangents: jax.jvp(full, primals, tangents))
+    return lambda state: step(state, flat, h)
+
+
 def _per_sub_step(extra, gammas):
     """The first ``extra`` of a composed step: factors and periods for each sub-step."""
     if extra == () or len(gammas) == 1:
@@ -299,11 +341,18 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
         carried = boundaries and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
     else:
         carried = CARRY_FACTORS
-    step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried)
-    carry0 = (carry0, _per_sub_step(step.start(carry0), gammas))
-    one_step = _one_step(step, gammas, h)
-    if PREDICT and len(gammas) == 1:
-        one_step = _extrapolated(one_step)
+    predict = (PREDICT if boundaries else PREDICT_ON_ACCELERATORS) and len(gammas) == 1
+
+    def one_step_of(params, h, max_iterations):
+        step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried)
+        one_step = _one_step(step, gammas, h)
+        return (_extrapolated(one_step) if predict else one_step), step.start
+
+    one_step, start = one_step_of(params, h, max_iterations)
+    if SPECULATIVE and not boundaries and not carried and max_iterations > 1 + CHORD_ITERATIONS:
+        one_step = _speculative(one_step_of, params, h, max_iterations)
+    carry0 = (carry0, _per_sub_step(start(carry0), gammas))
+    if predict:
         carry0 = (carry0[0], (carry0[1], no_previous(carry0[0][4])))
 
     def worst_step(carry, _):
@@ -318,7 +367,8 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
     """(initial state, (saved states, statistics)) of every member, members first, with static
     step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
-    saved, stats = scan_member_nodes(worst_step, carry0, _saved, n_saved, save_every, checkpoint, n_members, dtype)
+    unroll = 1 if boundaries else ACCELERATOR_UNROLL
+    saved, stats = scan_member_nodes(worst_step, carry0, _saved, n_saved, save_every, checkpoint, n_members, dtype, unroll)
     return state0, _unpack(layout, carry0[0], saved, stats)
 
 

@@ -19,16 +19,17 @@ def _pack(rows, carry, stats, dtype):
     return jnp.stack(rows(carry)), jnp.stack([x.astype(dtype) for x in stats])
 
 
-def scan_member_nodes(worst_step, carry0, rows, n_saved, save_every, checkpoint, n_members, dtype):
+def scan_member_nodes(worst_step, carry0, rows, n_saved, save_every, checkpoint, n_members, dtype, unroll=1):
     """``n_saved`` nodes of ``save_every`` steps (static counts: what ``jit``, ``grad`` and
     ``vmap`` trace). ``worst_step((carry, worst), None) -> ((carry, worst), None)``; ``rows(carry)``:
     the member arrays saved at a node. Returns the packed rows (nodes, components, members) and
     statistics (nodes, 3, members). ``checkpoint``: reverse mode rematerialises as
     ``vj.simulate``'s (states stored at blocks of saved nodes, √save_every blocks of steps
-    between two nodes); the forward pass is unchanged."""
+    between two nodes); the forward pass is unchanged. ``unroll``: steps per iteration of the
+    step loop."""
 
     def worst_steps(carry, n):
-        return jax.lax.scan(worst_step, carry, None, length=n)[0]
+        return jax.lax.scan(worst_step, carry, None, length=n, unroll=unroll)[0]
 
     def node(carry, _):
         carry = (carry, no_stats(n_members, dtype))
