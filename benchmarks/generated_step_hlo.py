@@ -8,7 +8,9 @@ loop fusions, conditionals (the step's fusion boundaries) and the copies their b
 Where Newton's factors are carried from step to step (the order-2 scenes), a step that takes a
 Jacobian is counted (the refresh conditional's taken branch is its last one, as for the
 boundaries). Each program is compiled twice: with XLA's default options (as under a caller's
-``jit``) and with ``ENSEMBLE_OPTIONS`` (as a concrete call on the CPU compiles it).
+``jit``) and with ``ENSEMBLE_OPTIONS`` (as a concrete call on the CPU compiles it). The last
+row is the peer: the vehicle's hand-written batched step (``_hand_vehicle_kernel.py``, order 1,
+chunks of 64 members).
 
     python benchmarks/generated_step_hlo.py
 """
@@ -25,13 +27,15 @@ import jax.numpy as jnp  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
+from _hand_vehicle_kernel import hand_kernel_ensemble  # noqa: E402
 from vi_jax.engine import _ensemble  # noqa: E402
 from vi_jax.engine._compile_options import ENSEMBLE_OPTIONS  # noqa: E402
 
 MEMBERS, STEPS = 1024, 1000
 CASES = [("rigid_body", vj.models.RigidBody, 0.01, 1), ("rigid_body", vj.models.RigidBody, 0.01, 2),
          ("heavy_top", vj.models.HeavyTop, 0.005, 1), ("heavy_top", vj.models.HeavyTop, 0.005, 2),
-         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 1), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2)]
+         ("vehicle", vj.models.UnderwaterVehicle, 0.01, 1), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 2),
+         ("vehicle_hand", vj.models.UnderwaterVehicle, 0.01, 1)]
 NOT_COUNTED = {"parameter", "get-tuple-element", "tuple", "constant", "bitcast", "broadcast", "reshape"}
 
 
@@ -96,7 +100,10 @@ def main():
     for name, scene, h, order in CASES:
         model = scene()
         states = perturbed_states(model.initial_state(), MEMBERS)
-        run = jax.jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False).g[:, -1])
+        if name == "vehicle_hand":
+            run = jax.jit(lambda m, s, h: hand_kernel_ensemble(m, s, h, STEPS, save_every=STEPS).g[:, -1])
+        else:
+            run = jax.jit(lambda m, s, h, order=order: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False).g[:, -1])
         lowered = run.lower(model, states, jnp.asarray(h))
         comps = computations(lowered.compile().as_text())
         count = census(comps, step_body(comps))
