@@ -74,9 +74,9 @@ LIGHT_OPERATIONS = 1000  # members_per_chunk
 # The accelerator plan (python benchmarks/gpu_step_profile.py, H200, 2^20 members): the
 # speculative step (_speculative; False: the fallback inside the step), two steps per iteration
 # of the step loop (ACCELERATOR_UNROLL: a step's result then needs no copy into the loop's
-# carry), and Newton from ξ_k (PREDICT_ON_ACCELERATORS): the vehicle at order 1 ran 1.53x /
-# 2.38x faster (float64 / float32) so than with the fallback inside the step and the
-# extrapolation, 1.77x / 2.52x faster than the same plan with the extrapolation.
+# carry), and Newton from ξ_k (PREDICT_ON_ACCELERATORS). The vehicle at order 1 ran 1.53x /
+# 2.38x faster (float64 / float32) than with the plan before (the fallback inside the step,
+# the extrapolation) and 1.77x / 2.52x faster than this plan with the extrapolation.
 SPECULATIVE = True
 ACCELERATOR_UNROLL = 2
 PREDICT_ON_ACCELERATORS = False
