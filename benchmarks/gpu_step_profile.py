@@ -13,6 +13,11 @@ the rates are written).
 
     python benchmarks/gpu_step_profile.py [--members 1048576] [--steps 100] [--dtypes float64 float32]
         [--cases ...] [--out benchmarks/results/gpu_step_profile.json] [--hlo-dir DIR]
+    python benchmarks/gpu_step_profile.py --plot [--out ...]   # the vehicle's rows as a figure, no run
+
+``--plot`` draws µs per step of the vehicle's plans from the JSON (its latest row of each case and
+dtype), split into the step's kernels, copies and time outside kernels (launch gaps and the
+host's wait for the fallback check), beside the JSON as ``gpu_step_profile.png``.
 """
 
 import argparse
@@ -106,6 +111,44 @@ def run(case, dtype_name, members, n_steps, hlo_dir):
     return row
 
 
+PLOTTED = {"vehicle1_hand": "hand-written step (peer)", "vehicle1_fallback_in_step": "plan before: fallback inside the step",
+           "vehicle1_one_step_per_iteration": "speculative, one step per loop iteration",
+           "vehicle1_extrapolated": "speculative, two steps, extrapolated guess", "vehicle1": "speculative, two steps, from ξ_k (default)"}
+
+
+def plot(path):
+    """µs per step of the vehicle's plans (latest row of each case and dtype in the JSON)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = json.loads(Path(path).read_text())
+    rows = {(r["case"], r["dtype"]): r for run in data.get("runs", [data]) for r in run["rows"]}
+    fig, axes = plt.subplots(1, 2, figsize=(12, 3.6), sharey=True)
+    parts = (("kernels of the step", "tab:blue"), ("copies", "tab:red"), ("outside kernels", "tab:gray"))
+    for ax, dtype in zip(axes, ("float64", "float32")):
+        cases = [c for c in PLOTTED if (c, dtype) in rows]
+        for y, case in enumerate(cases):
+            r = rows[case, dtype]
+            copies = sum(k["us_per_step"] for k in r["kernels"] if k["name"].lower().startswith("memcpy"))
+            widths = (r["kernel_us_per_step"] - copies, copies, r["us_per_step"] - r["kernel_us_per_step"])
+            left = 0.0
+            for (label, colour), width in zip(parts, widths):
+                ax.barh(y, width, left=left, color=colour, label=label if y == 0 and dtype == "float32" else None)
+                left += width
+            ax.text(left + 5, y, f"{r['rate'] / 1e9:.2f} G/s", va="center", fontsize=8)
+        ax.set_yticks(range(len(cases)), [PLOTTED[c] for c in cases])
+        ax.set_title(f"vehicle, order 1, {dtype}, 2²⁰ members")
+        ax.set_xlabel("µs per step (profiler trace)")
+    axes[0].invert_yaxis()  # shared: once for both
+    axes[1].legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    out = Path(path).with_suffix(".png")
+    fig.savefig(out, dpi=120)
+    print(f"wrote {out}")
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--members", type=int, default=1048576)
@@ -115,7 +158,10 @@ def main():
                                                           "heavy_top2", "heavy_top1"], choices=list(CASES))
     parser.add_argument("--out", default=str(HERE / "results" / "gpu_step_profile.json"))
     parser.add_argument("--hlo-dir", default=None)
+    parser.add_argument("--plot", action="store_true", help="draw the JSON's vehicle rows (no run)")
     args = parser.parse_args()
+    if args.plot:
+        return plot(args.out)
     import jax
 
     jax.config.update("jax_enable_x64", True)
