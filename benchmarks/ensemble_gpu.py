@@ -68,12 +68,13 @@ def _scene(name, dtype):
 @contextlib.contextmanager
 def _fusion_boundaries(on):
     """With ``on``, the generated step keeps its fusion boundaries on every backend (the CPU
-    plan's; by default a GPU plan runs without them)."""
+    plan's; by default a GPU plan runs without them); the plan's other choices stay the
+    backend's. ``make_step``'s ninth argument is ``boundaries`` (after it: ``carry_factors``)."""
     from vi_jax.engine import _generated_step
 
     real = _generated_step.make_step
     if on:
-        _generated_step.make_step = lambda *args: real(*args[:-1], True)
+        _generated_step.make_step = lambda *args: real(*args[:8], True, *args[9:])
     try:
         yield
     finally:
