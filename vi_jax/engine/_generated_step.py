@@ -75,7 +75,7 @@ LIGHT_OPERATIONS = 1000  # members_per_chunk
 # speculative step (_speculative; False: the fallback inside the step), two steps per iteration
 # of the step loop (ACCELERATOR_UNROLL: a step's result then needs no copy into the loop's
 # carry), and Newton from ξ_k (PREDICT_ON_ACCELERATORS). The vehicle at order 1 ran 1.53x /
-# 2.38x faster (float64 / float32) than with the plan before (the fallback inside the step,
+# 2.39x faster (float64 / float32) than with the plan before (the fallback inside the step,
 # the extrapolation) and 1.77x / 2.52x faster than this plan with the extrapolation.
 SPECULATIVE = True
 ACCELERATOR_UNROLL = 2
