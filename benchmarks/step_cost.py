@@ -12,7 +12,9 @@ rows are the same program). The row "small products as dots" is the every-node p
 the products of the Lagrangian left as ``dot_general``s (the peer of ``fused_products``,
 ``vi_jax/lie/_small.py``). The row "Jacobian eliminated at every solve" is the every-node
 program with Newton's solves by ``dense_solve`` instead of factors computed once (the peer of
-``lu_factor``, ``vi_jax/solvers/_newton.py``); the row "one Newton and two chord steps first"
+``lu_factor``, ``vi_jax/solvers/_newton.py``); the row "Newton on every unknown" is the
+every-node program with Newton on (ω, ν) instead of ν solved first from its explicit equations
+(eq. 74; the peer of ``vi_jax/engine/_explicit_unknowns.py``); the row "one Newton and two chord steps first"
 is the concrete call's program without Newton's full iterations, which ``vj.simulate`` ran
 first before its Jacobian was factored once (``vj.ensemble``'s generated step still does); the
 row "traced save_every" is the concrete call's program with a node loop and a step loop of
@@ -82,6 +84,10 @@ def main():
     eliminated = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
     with mock.patch.object(_newton, "lu_factor", lambda A: A), mock.patch.object(_newton, "lu_solve", _newton.dense_solve):
         rows["vj.simulate order=1, every node saved + diagnostics, Jacobian eliminated at every solve"] = time_compiled(eliminated, model, x0)
+    jax.clear_caches()
+    every_unknown = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
+    with mock.patch.object(_advance, "explicit_unknowns", lambda *args: None):
+        rows["vj.simulate order=1, every node saved + diagnostics, Newton on every unknown"] = time_compiled(every_unknown, model, x0)
     jax.clear_caches()
     final = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, save_every=args.steps, throw=False))
     rows["vj.simulate order=1, final node only"] = time_compiled(final, model, x0)

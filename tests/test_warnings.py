@@ -22,9 +22,18 @@ def test_energy_error_is_relative_to_the_initial_energy_over_the_finite_values()
 
 
 def test_simulate_warns_on_a_meaningless_step_and_not_on_a_sound_one():
+    """h = 1.7 s: every step solves its equations, the energy error reaches ~0.7 (a meaningless
+    run: a warning). h = 10⁶ s: the second step does not solve them (Newton on ω with ν solved
+    first from eq. 74; Newton on all six unknowns had converged there, meaninglessly): the default
+    call raises, and with ``throw=False`` the solved steps' energy error warns."""
     model = vj.models.UnderwaterVehicle()
     with pytest.warns(vj.AccuracyWarning, match="Reduce h"):
-        sol = vj.simulate(model, model.initial_state(), 1e6, 10)
+        sol = vj.simulate(model, model.initial_state(), 1.7, 200)
+    assert energy_error(sol.energy) > MEANINGLESS_ENERGY_ERROR
+    with pytest.raises(vj.NewtonFailure, match="Reduce h"):
+        vj.simulate(model, model.initial_state(), 1e6, 10)
+    with pytest.warns(vj.AccuracyWarning, match="Reduce h"):
+        sol = vj.simulate(model, model.initial_state(), 1e6, 10, throw=False)
     assert energy_error(sol.energy) > MEANINGLESS_ENERGY_ERROR
     with warnings.catch_warnings():
         warnings.simplefilter("error", vj.AccuracyWarning)
@@ -50,7 +59,7 @@ def test_ensemble_counts_the_meaningless_members_and_is_silent_on_sound_ones():
 
 
 def test_cli_flags_a_meaningless_run_and_passes_a_sound_one(tmp_path, capsys):
-    code = main(["simulate", "underwater", "--h", "1e6", "--steps", "10", "--out", str(tmp_path / "bad"), "--no-progress"])
+    code = main(["simulate", "underwater", "--h", "1.7", "--steps", "200", "--out", str(tmp_path / "bad"), "--no-progress"])
     err = capsys.readouterr().err
     assert code == MEANINGLESS_EXIT and "vi-jax: warning:" in err and "energy error" in err
     assert (tmp_path / "bad" / "trajectory.npz").exists()  # written for inspection

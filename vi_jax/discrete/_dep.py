@@ -83,8 +83,9 @@ def discrete_momenta(system, tau, rule, h, z, n, a):
     return (m_minus, p_minus), (m_plus, p_plus), scale
 
 
-def dep_step(system, tau, rule, h, state: StepState, *, rtol, max_iterations):
-    """One step (g_k, q_k, M_k, P_k) ↦ (g_{k+1}, q_{k+1}, M_{k+1}, P_{k+1})."""
+def dep_step(system, tau, rule, h, state: StepState, *, rtol, max_iterations, explicit=None):
+    """One step (g_k, q_k, M_k, P_k) ↦ (g_{k+1}, q_{k+1}, M_{k+1}, P_{k+1}); ``explicit``: the
+    unknowns with explicit equations (:func:`vi_jax.solvers.newton_root`)."""
     G = system.group
     n, a = with_fused_products(lambda g, q: (system.body_configuration(g, q), system.body_advected(g)))(state.g, state.q)
     target = _join(state.M, state.P)
@@ -93,7 +94,7 @@ def dep_step(system, tau, rule, h, state: StepState, *, rtol, max_iterations):
         (m, p), _, scale = discrete_momenta(system, tau, rule, h, z, n, a)
         return _join(m, p) - target, scale
 
-    z, stats = newton_root(residual, state.z, rtol=rtol, max_iterations=max_iterations)
+    z, stats = newton_root(residual, state.z, rtol=rtol, max_iterations=max_iterations, explicit=explicit)
 
     def update(z):
         xi, nu = _split(system, z)

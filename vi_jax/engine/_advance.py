@@ -21,12 +21,14 @@ from .._saved_nodes import SAVE_BLOCK, loop_saved_nodes, rematerialised_steps, s
 from .._xla_flags import loop_option_requested
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
+from ._explicit_unknowns import explicit_unknowns
 from ._placement import target_platform
 
 
 def _sub_step(system, tau, rule, rtol, max_iter):
     def sub_step(state, gamma_h):
-        new, stats = dep_step(system, tau, rule, gamma_h, state, rtol=rtol, max_iterations=max_iter)
+        explicit = explicit_unknowns(system, tau, rule, state, gamma_h)
+        new, stats = dep_step(system, tau, rule, gamma_h, state, rtol=rtol, max_iterations=max_iter, explicit=explicit)
         # After a failed step the state is NaN (and every later step reports NONFINITE): a
         # partial Solution never continues from a state that did not solve the equations.
         failed = stats.result != SUCCESS

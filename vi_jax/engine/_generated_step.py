@@ -22,9 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..discrete._dep import StepState, StepStats, _join, _split, discrete_momenta, legendre_initial_state
+from ..discrete._dep import StepState, StepStats, _split, discrete_momenta, legendre_initial_state
 from ..solvers import CHORD_ITERATIONS, SINGULAR_DIFFERENCE_MAP, SUCCESS
 from ._advance import extrapolation, no_previous
+from ._explicit_unknowns import dep_residual
 from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
@@ -44,9 +45,7 @@ def _pieces(static, tau, rule):
         system = scene(params)
         return system.body_configuration(g, q), system.body_advected(g)
 
-    def residual(params, h, z, n, a, target):
-        (m, p), _, scale = discrete_momenta(scene(params), tau, rule, h, z, n, a)
-        return _join(m, p) - target, scale
+    residual = dep_residual(static, tau, rule)
 
     def update(params, h, z, g, q, n, a):
         system = scene(params)

@@ -141,13 +141,30 @@ def implicit_root(f, z0, solve, tangent_solve):
     return jax.lax.custom_root(f, z0, solve, tangent_solve, has_aux=True)
 
 
+def _take(x, idx):
+    """The entries ``idx`` (a list) of the vector ``x``."""
+    if list(idx) == list(range(idx[0], idx[-1] + 1)):
+        return x[idx[0] : idx[-1] + 1]
+    return jnp.stack([x[i] for i in idx])
+
+
+def _put(x, idx, values):
+    """``x`` with its entries ``idx`` (a list) replaced by ``values``."""
+    if list(idx) == list(range(idx[0], idx[-1] + 1)):
+        return jnp.concatenate([x[: idx[0]], values, x[idx[-1] + 1 :]])
+    parts = list(x)
+    for i, v in zip(idx, values):
+        parts[i] = v
+    return jnp.stack(parts)
+
+
 class NewtonStats(eqx.Module):
     iterations: jax.Array
     residual: jax.Array  # ‖F(z) − target‖∞ / scale at the returned z
     result: jax.Array
 
 
-def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS):
+def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS, explicit=None):
     """Root of ``fn(z) -> (residual, scale)`` near ``z0`` (a good guess: the previous step).
 
     One Newton step, then ``chord_iterations`` steps that reuse its Jacobian (residual-only
@@ -159,8 +176,14 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
     the arithmetic of a small step, so the common path has none (benchmarks/step_cost.py).
     With ``max_iterations`` ≤ 1 + ``chord_iterations`` the program holds no full iterations.
 
+    ``explicit``: (rows, columns) of unknowns with explicit equations — rows of the residual
+    affine in those unknowns alone, with coefficients that do not depend on z (seed 000 eq. 74's
+    ν; found by :func:`vi_jax.engine._explicit_unknowns.explicit_unknowns`). They are solved
+    exactly first and Newton runs on the other unknowns with them fixed: a smaller Jacobian to
+    evaluate and factor (``python benchmarks/step_cost.py``, its row "Newton on every unknown").
+
     Returns the root and :class:`NewtonStats` (``residual``: relative, before the final
-    correction); gradients flow through the implicit-function theorem.
+    correction); gradients flow through the implicit-function theorem, of the whole system.
     """
 
     fn = traced_once(fn, z0)
@@ -170,7 +193,29 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
 
     def solve(f, z_init):
         del f
+        if explicit is None:
+            return iterate(fn, z_init)
+        rows, cols = explicit
+        other_rows = [i for i in range(z_init.shape[0]) if i not in rows]
+        others = [j for j in range(z_init.shape[0]) if j not in cols]
 
+        def explicit_rows(v):
+            r = _take(fn(_put(z_init, cols, v))[0], rows)
+            return r, r
+
+        coefficients, r = jax.jacfwd(explicit_rows, has_aux=True)(_take(z_init, cols))
+        z = _put(z_init, cols, _take(z_init, cols) - lu_solve(lu_factor(coefficients), r))
+
+        def fn_others(u):
+            r, scale = fn(_put(z, others, u))
+            return _take(r, other_rows), scale
+
+        u, stats = iterate(fn_others, _take(z, others))
+        z = _put(z, others, u)
+        result = jnp.where(jnp.all(jnp.isfinite(z)), stats.result, NONFINITE)
+        return z, NewtonStats(stats.iterations, stats.residual, result.astype(z.dtype))
+
+    def iterate(fn, z_init):
         def with_aux(u):
             r, scale = fn(u)
             return r, (r, scale)
