@@ -9,7 +9,7 @@ import numpy as np
 from .. import _validation as val
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
-from ..discrete import composition_coefficients, legendre_initial_state
+from ..discrete import StepStats, composition_coefficients, legendre_initial_state
 from ..discrete._composition import ORDERS
 from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
 from ..lie import difference_map
@@ -152,9 +152,17 @@ def simulate(
 
 
 def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
+    """The Solution of the initial state ``state0`` and the ``saved`` nodes after it."""
     states = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state0, saved)
-    xi, nu, energy, kn, kn_scale = _node_diagnostics(system, states, rtol, max_iter)
     first = lambda x, v: jnp.concatenate([jnp.full((1,), v, x.dtype), x])  # noqa: E731
+    stats = StepStats(first(stats.iterations, 0), first(stats.residual, 0), first(stats.result, SUCCESS))
+    return _assemble_rows(system, states, stats, h, save_every, rtol, max_iter)
+
+
+def _assemble_rows(system, states, stats, h, save_every, rtol, max_iter):
+    """The Solution of the nodes ``states`` (the initial state first) and the ``stats`` of the
+    steps that reached them (row 0: none)."""
+    xi, nu, energy, kn, kn_scale = _node_diagnostics(system, states, rtol, max_iter)
     return Solution(
         t=h * save_every * jnp.arange(states.M.shape[0], dtype=h.dtype),
         g=states.g,
@@ -166,9 +174,9 @@ def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
         energy=energy,
         kelvin_noether=kn,
         kelvin_noether_scale=kn_scale,
-        newton_iterations=first(stats.iterations, 0),
-        newton_residual=first(stats.residual, 0),
-        result=first(stats.result, SUCCESS),
+        newton_iterations=stats.iterations,
+        newton_residual=stats.residual,
+        result=stats.result,
     )
 
 
@@ -185,10 +193,10 @@ def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rto
 
 
 def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
-    """The DEP run with traced step counts, ``capacity`` saved-node rows (not jitted)."""
+    """The DEP run with traced step counts, ``capacity`` + 1 node rows (not jitted)."""
     state0 = _initial(system, x0)
-    _, saved, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
-    return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
+    _, states, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
+    return _assemble_rows(system, states, stats, h, save_every, rtol, max_iter)
 
 
 scan_program, loop_program, assemble = _simulate_scan, _simulate_loop, _assemble
@@ -241,8 +249,8 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
             state, saved, stats = _advance_loop_jit(
                 system, tau, rule, gammas, h, state, count(size), count(save_every), capacity, rtol, max_iter
             )
-            saved_parts.append(jax.tree.map(lambda x: x[:size], saved))
-            stats_parts.append(jax.tree.map(lambda x: x[:size], stats))
+            saved_parts.append(jax.tree.map(lambda x: x[1 : size + 1], saved))  # row 0: the piece's start
+            stats_parts.append(jax.tree.map(lambda x: x[1 : size + 1], stats))
             bar.update(size * save_every)
     # Pad to the power-of-two capacity so the node diagnostics compile once per capacity too.
     total = saved_capacity(n_saved)
