@@ -40,7 +40,7 @@ def explicit_unknowns(system, tau, rule, state, h):
     system). Traced abstractly: nothing is added to the caller's program.
 
     Only scenes with additional dynamics are analysed (their P rows are where such equations
-    arise, eq. 74): the trace costs a step's Jacobian on components, 0.1 s on the vehicle but
+    arise, eq. 74): the trace costs a step's Jacobian on components, 0.17 s on the vehicle but
     0.3–0.5 s on the heavy top on SO(4) and 1.5–3 s on SO(6), whose unknowns ξ have none. The
     answer depends on the scene's structure only (its parameters are unknown values here), so
     it is kept for the next program of the same structure."""
