@@ -141,16 +141,20 @@ def implicit_root(f, z0, solve, tangent_solve):
     return jax.lax.custom_root(f, z0, solve, tangent_solve, has_aux=True)
 
 
+def _is_range(idx):
+    return list(idx) == list(range(idx[0], idx[-1] + 1))
+
+
 def _take(x, idx):
-    """The entries ``idx`` (a list) of the vector ``x``."""
-    if list(idx) == list(range(idx[0], idx[-1] + 1)):
+    """The entries ``idx`` (a list) of the vector ``x`` (a slice where they are contiguous)."""
+    if _is_range(idx):
         return x[idx[0] : idx[-1] + 1]
     return jnp.stack([x[i] for i in idx])
 
 
 def _put(x, idx, values):
     """``x`` with its entries ``idx`` (a list) replaced by ``values``."""
-    if list(idx) == list(range(idx[0], idx[-1] + 1)):
+    if _is_range(idx):
         return jnp.concatenate([x[: idx[0]], values, x[idx[-1] + 1 :]])
     parts = list(x)
     for i, v in zip(idx, values):
@@ -203,8 +207,9 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
             r = _take(fn(_put(z_init, cols, v))[0], rows)
             return r, r
 
-        coefficients, r = jax.jacfwd(explicit_rows, has_aux=True)(_take(z_init, cols))
-        z = _put(z_init, cols, _take(z_init, cols) - lu_solve(lu_factor(coefficients), r))
+        v = _take(z_init, cols)
+        coefficients, r = jax.jacfwd(explicit_rows, has_aux=True)(v)
+        z = _put(z_init, cols, v - lu_solve(lu_factor(coefficients), r))
 
         def fn_others(u):
             r, scale = fn(_put(z, others, u))
