@@ -8,7 +8,10 @@ steps) against a hand-specialised JAX implementation of eq. (88) in the same pro
 The second form measures with the XLA:CPU loop option of the command line (vi_jax/engine/_cpu_tuning.py).
 The row "blocks of 128 nodes" is the every-node program as it was before ``step_block`` (the
 peer that justifies the blocks of 4 nodes of the default loop plan; with the loop option both
-rows are the same program). The row "small products as dots" is the every-node program with
+rows are the same program). The row "initial state copied in front" is the every-node program
+with the initial state concatenated in front of the scanned nodes (the peer of
+``_advance._initial_node_in_scan``, the loop option's one scan whose first node is the initial
+state; with default XLA both rows are the same program). The row "small products as dots" is the every-node program with
 the products of the Lagrangian left as ``dot_general``s (the peer of ``fused_products``,
 ``vi_jax/lie/_small.py``). The row "Jacobian eliminated at every solve" is the every-node
 program with Newton's solves by ``dense_solve`` instead of factors computed once (the peer of
@@ -76,6 +79,10 @@ def main():
     jax.clear_caches()  # vj.simulate's traced program is cached by its arguments: trace it anew
     with mock.patch.object(_advance, "_node_block", lambda state, save_every: SAVE_BLOCK):
         rows[f"vj.simulate order=1, every node saved + diagnostics, blocks of {SAVE_BLOCK} nodes"] = time_compiled(blocks_of_128, model, x0)
+    jax.clear_caches()
+    copied = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
+    with mock.patch.object(_advance, "_initial_node_in_scan", lambda save_every: False):
+        rows["vj.simulate order=1, every node saved + diagnostics, initial state copied in front"] = time_compiled(copied, model, x0)
     jax.clear_caches()
     dots = jax.jit(lambda m, x: vj.simulate(m, x, args.h, args.steps, throw=False))
     with mock.patch.object(_small, "_is_small_dot", lambda eqn: False):

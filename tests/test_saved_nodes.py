@@ -70,3 +70,38 @@ def test_traced_runs_equal_the_concrete_run_around_block_boundaries(n_steps):
         assert np.max(np.abs(ours - theirs)) <= bound * max(np.max(np.abs(theirs)), 1.0), field
     for field in ("newton_iterations", "result"):
         np.testing.assert_array_equal(np.asarray(getattr(traced, field)), np.asarray(getattr(concrete, field)), field)
+
+
+def test_the_loop_option_plan_puts_the_initial_state_first_without_a_copy(monkeypatch):
+    """With the loop option and every step saved, the traced run scans one more node whose first
+    keeps the initial state (:func:`vi_jax.engine._advance._initial_node_first`) instead of
+    copying it in front of the nodes: the same Solution as the default plan's (to Newton's
+    tolerance per step), the same Newton statistics, and the same gradients, checkpointed or
+    not. The plan is read at trace time, so each is traced afresh here."""
+    model = vj.models.UnderwaterVehicle()
+    x0 = model.initial_state()
+    n_steps = 9
+
+    def run(flags, checkpoint=True):
+        monkeypatch.setenv("XLA_FLAGS", flags)
+        jax.clear_caches()
+        sol = jax.jit(lambda x: vj.simulate(model, x, 0.01, n_steps, checkpoint=checkpoint))(x0)
+        start = lambda xi: vj.State(x0.g, xi, x0.q, x0.qdot)  # noqa: E731
+        loss = lambda xi: jnp.sum(vj.simulate(model, start(xi), 0.01, n_steps, checkpoint=checkpoint).energy)  # noqa: E731
+        return sol, jax.grad(loss)(x0.xi)
+
+    default, grad_default = run("")
+    looped, grad_looped = run(FAST_LOOPS_FLAG)
+    _, grad_unchecked = run(FAST_LOOPS_FLAG, checkpoint=False)
+    bound = 4 * 64 * EPS * np.sqrt(n_steps)
+    for field in ("g", "q", "M", "P", "xi", "energy"):
+        ours, theirs = np.asarray(getattr(looped, field)), np.asarray(getattr(default, field))
+        assert ours.shape == theirs.shape, field
+        assert np.max(np.abs(ours - theirs)) <= bound * max(np.max(np.abs(theirs)), 1.0), field
+    np.testing.assert_array_equal(np.asarray(looped.g[0]), np.asarray(x0.g))
+    for field in ("newton_iterations", "result"):
+        np.testing.assert_array_equal(np.asarray(getattr(looped, field)), np.asarray(getattr(default, field)), field)
+    scale = np.max(np.abs(np.asarray(grad_default)))
+    for grad in (grad_looped, grad_unchecked):
+        assert np.all(np.isfinite(np.asarray(grad)))
+        assert np.max(np.abs(np.asarray(grad) - np.asarray(grad_default))) <= bound * scale

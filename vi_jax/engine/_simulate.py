@@ -9,12 +9,12 @@ import numpy as np
 from .. import _validation as val
 from ..solvers import RESULT_MESSAGES, SUCCESS
 from .._system import State
-from ..discrete import StepStats, composition_coefficients, legendre_initial_state
+from ..discrete import composition_coefficients, legendre_initial_state
 from ..discrete._composition import ORDERS
 from ..discrete._splitting import ORDERS as SPLITTING_ORDERS
 from ..lie import difference_map
 from .._accuracy import warn_if_meaningless
-from ._advance import advance_loop, advance_scan, traced_composition
+from ._advance import advance_loop, advance_scan, initial_first, traced_composition
 from ._compile_options import single_trajectory_jit
 from ._placement import placement
 from .._precision import full_precision
@@ -153,10 +153,7 @@ def simulate(
 
 def _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter):
     """The Solution of the initial state ``state0`` and the ``saved`` nodes after it."""
-    states = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), state0, saved)
-    first = lambda x, v: jnp.concatenate([jnp.full((1,), v, x.dtype), x])  # noqa: E731
-    stats = StepStats(first(stats.iterations, 0), first(stats.residual, 0), first(stats.result, SUCCESS))
-    return _assemble_rows(system, states, stats, h, save_every, rtol, max_iter)
+    return _assemble_rows(system, *initial_first(state0, saved, stats), h, save_every, rtol, max_iter)
 
 
 def _assemble_rows(system, states, stats, h, save_every, rtol, max_iter):
@@ -188,8 +185,8 @@ def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rto
     """The DEP run with static step counts (not jitted: ``vj.ensemble`` traces it under its
     own ``vmap``)."""
     state0 = _initial(system, x0)
-    _, saved, stats = advance_scan(system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter, checkpoint)
-    return _assemble(system, state0, saved, stats, h, save_every, rtol, max_iter)
+    _, states, stats = advance_scan(system, tau, rule, gammas, h, state0, n_saved, save_every, rtol, max_iter, checkpoint)
+    return _assemble_rows(system, states, stats, h, save_every, rtol, max_iter)
 
 
 def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
