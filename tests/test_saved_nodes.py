@@ -85,10 +85,12 @@ def test_the_loop_option_plan_puts_the_initial_state_first_without_a_copy(monkey
     def run(flags, checkpoint=True):
         monkeypatch.setenv("XLA_FLAGS", flags)
         jax.clear_caches()
-        sol = jax.jit(lambda x: vj.simulate(model, x, 0.01, n_steps, checkpoint=checkpoint))(x0)
-        start = lambda xi: vj.State(x0.g, xi, x0.q, x0.qdot)  # noqa: E731
-        loss = lambda xi: jnp.sum(vj.simulate(model, start(xi), 0.01, n_steps, checkpoint=checkpoint).energy)  # noqa: E731
-        return sol, jax.grad(loss)(x0.xi)
+
+        def loss(xi):
+            sol = vj.simulate(model, vj.State(x0.g, xi, x0.q, x0.qdot), 0.01, n_steps, checkpoint=checkpoint)
+            return jnp.sum(sol.energy), sol
+
+        return jax.grad(loss, has_aux=True)(x0.xi)[::-1]
 
     default, grad_default = run("")
     looped, grad_looped = run(FAST_LOOPS_FLAG)
