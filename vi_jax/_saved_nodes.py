@@ -94,5 +94,8 @@ def first_rows(tree, n):
     committedness: a committed array would make a later ``jit`` that mixes it with fresh inputs
     compile anew. An uncommitted row goes to the default device (inside
     ``vi_jax.engine._placement.placement``: the run's)."""
+    leaves, treedef = jax.tree.flatten(tree)
     place = lambda x: next(iter(x.devices())) if x.committed else None  # noqa: E731
-    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)[:n], place(x)), tree)
+    # One device_put for all leaves: 13 apart cost 0.37 ms, more than a 100-step run's steps.
+    rows = jax.device_put([np.asarray(x)[:n] for x in leaves], [place(x) for x in leaves])
+    return jax.tree.unflatten(treedef, rows)

@@ -44,7 +44,7 @@ def _short(value) -> str:
 @_eager
 def as_array(name, value, shape=None):
     try:
-        arr = jnp.asarray(value)
+        arr = value if isinstance(value, jax.Array) else jnp.asarray(value)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{name}: expected an array, got {value!r}") from err
     if not jnp.issubdtype(arr.dtype, jnp.number) or jnp.issubdtype(arr.dtype, jnp.complexfloating):
@@ -54,11 +54,17 @@ def as_array(name, value, shape=None):
     return arr
 
 
+def _dtype(leaf):
+    """The dtype of an array or a Python number (without ``jnp.result_type``'s type promotion
+    machinery: these checks run at every concrete call)."""
+    return leaf.dtype if hasattr(leaf, "dtype") else np.result_type(leaf)
+
+
 def numeric_leaves(tree):
     """The float leaves (arrays or Python floats) of a pytree."""
     return [
         leaf for leaf in jax.tree_util.tree_leaves(tree)
-        if isinstance(leaf, (float, np.ndarray, jax.Array)) and jnp.issubdtype(jnp.result_type(leaf), jnp.inexact)
+        if isinstance(leaf, (float, np.ndarray, jax.Array)) and jnp.issubdtype(_dtype(leaf), jnp.inexact)
     ]
 
 
@@ -66,7 +72,7 @@ def numeric_leaves(tree):
 def check_finite(name, value):
     if is_concrete(value):
         for leaf in jax.tree_util.tree_leaves(value):
-            if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact) and not np.all(np.isfinite(np.asarray(leaf))):
+            if jnp.issubdtype(_dtype(leaf), jnp.inexact) and not np.isfinite(np.asarray(leaf)).all():
                 raise ValueError(f"{name}: expected finite values, got {_short(leaf)}")
     return value
 
