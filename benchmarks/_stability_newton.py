@@ -14,10 +14,13 @@ from vi_jax.discrete import _dep
 HALVINGS = 8  # trial step lengths 1, 1/2, …, 1/2⁷
 
 
-def damped_newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=2):
+def damped_newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=2, explicit=None):
     """As the engine's ``newton_root`` (Newton, chord steps, check, full Newton fallback, final
     correction), except that each fallback iteration takes the longest step z − 2⁻ᵏΔz,
-    k < ``HALVINGS``, that lowers ‖F‖∞ (the shortest if none does)."""
+    k < ``HALVINGS``, that lowers ‖F‖∞ (the shortest if none does). ``explicit`` (the unknowns
+    with explicit equations, which the engine solves first) is accepted and not used: this
+    prototype runs Newton on every unknown, the same root."""
+    del explicit
 
     def residual_only(z):
         return fn(z)[0]

@@ -1,6 +1,9 @@
 """A tiny version of benchmarks/stability.py: the behaviour it measured at and past the
 difference maps' limits and at near-singular data (values and gradients)."""
 
+import sys
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -74,3 +77,23 @@ def test_top_exactly_upright_stays_upright():
     gamma = np.asarray(sol.R[:, 2, :])  # Γ = Rᵀe₃
     assert np.max(np.abs(gamma - np.array([0.0, 0.0, 1.0]))) < 1e-13
     assert np.max(np.abs(np.asarray(sol.omega) - np.array([0.0, 0.0, 6.0]))) < 1e-12
+
+
+def test_the_damped_newton_prototype_stands_in_for_the_engines():
+    """benchmarks/stability.py swaps ``dep_step``'s Newton for the damped prototype of
+    benchmarks/_stability_newton.py: it must take every argument the engine passes (the
+    vehicle's explicit unknowns included) and find the same root, to Newton's tolerance per step
+    (64ε, a √n random walk, a factor 4 for its tail)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from _stability_newton import patched
+
+    model = vj.models.UnderwaterVehicle()
+    x0, n_steps = model.initial_state(), 20
+    run = lambda: jax.jit(lambda x: vj.simulate(model, x, 0.01, n_steps))(x0)  # noqa: E731
+    engine = run()
+    with patched():
+        damped = run()
+    bound = 4 * 64 * np.finfo(np.float64).eps * np.sqrt(n_steps)
+    for field in ("g", "q", "M", "P"):
+        ours, theirs = np.asarray(getattr(damped, field)), np.asarray(getattr(engine, field))
+        assert np.max(np.abs(ours - theirs)) <= bound * max(np.max(np.abs(theirs)), 1.0), field
