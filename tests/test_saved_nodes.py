@@ -40,7 +40,8 @@ def test_a_block_is_the_most_nodes_whose_largest_leaf_fits(scene, dtype):
 def test_the_block_follows_the_loop_plan(monkeypatch):
     """Blocks of steps only where every step is saved on the CPU with default loops; blocks of
     ``SAVE_BLOCK`` with a node every few steps (their steps run in an inner loop already), with
-    the loop option (one kernel per loop) and on an accelerator."""
+    the loop option (one kernel per loop: a run saving every step is one scan instead) and on an
+    accelerator."""
     _, state = _state(vj.models.UnderwaterVehicle, jnp.float64)
     monkeypatch.setenv("XLA_FLAGS", "")
     assert _advance._node_block(state, 1) == step_block(state) == 4  # 4 rows of a 3×3 float64 g: 288 B
@@ -48,8 +49,12 @@ def test_the_block_follows_the_loop_plan(monkeypatch):
     monkeypatch.setattr(_advance, "target_platform", lambda: "gpu")
     assert _advance._node_block(state, 1) == SAVE_BLOCK
     monkeypatch.undo()
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert not _advance._initial_node_in_scan(1)
     monkeypatch.setenv("XLA_FLAGS", FAST_LOOPS_FLAG)
     assert _advance._node_block(state, 1) == SAVE_BLOCK
+    assert _advance._initial_node_in_scan(1)  # every node in one scan: no block asked for
+    assert not _advance._initial_node_in_scan(2)
 
 
 @pytest.mark.parametrize("n_steps", [1, 3, 4, 5, 11, SAVE_BLOCK + 3])

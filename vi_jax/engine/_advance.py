@@ -195,9 +195,9 @@ def _initial_node_first(node, zero):
     first node's step is computed and dropped (a ``where``, one step in the run: a conditional
     cost more per step than it saves), the same step the second node takes, so its value is
     finite wherever the run is. With the loop option, every node saved, the vehicle under
-    ``jit`` ran 50,000 steps in 2.01–2.14× the time of the hand-written eq. (88) against
-    2.32–2.59× with the initial state copied in front of the nodes (alternate processes of both
-    versions; ``python benchmarks/step_cost.py``, its row "initial state copied in front")."""
+    ``jit`` ran 50,000 steps in 1.90–2.08× the time of the hand-written eq. (88) against
+    2.30–2.40× with the initial state copied in front of the nodes (three runs of ``python
+    benchmarks/step_cost.py`` with the loop option, its row "initial state copied in front")."""
 
     def first_or_node(carry, _):
         first, carry = carry
@@ -211,7 +211,8 @@ def _initial_node_first(node, zero):
 def _node_block(state, save_every):
     """Saved nodes per block of :func:`advance_scan`: :func:`step_block` when every step is
     saved under XLA:CPU's default loop plan (where a step's operations would otherwise share a
-    loop body with the block's large output buffers), else ``SAVE_BLOCK``."""
+    loop body with the block's large output buffers), else ``SAVE_BLOCK`` (with the loop option
+    a run saving every step does not ask: :func:`_initial_node_in_scan`)."""
     if save_every == 1 and target_platform() == "cpu" and not loop_option_requested():
         return step_block(state)
     return SAVE_BLOCK
