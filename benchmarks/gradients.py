@@ -11,8 +11,9 @@ parameters) with and without ``checkpoint``; forward mode: one ``jvp`` and the l
 Jacobian (``jacfwd`` of the saved positions w.r.t. the 11 parameters of vi_jax.fitting._parametrisation). Each time
 is divided by the forward pass (the loss alone).
 
-Part 2 — memory, a fresh process per (loss, variant, number of steps) under the ``tuned`` flags
-(memory does not depend on them; they shorten the runs): XLA's compiled memory analysis of the
+Part 2 — memory, a fresh process per (loss, variant, number of steps, configuration): ``plain``
+under the ``tuned`` flags, ``checkpoint`` under both (on XLA:CPU's default loop plan each step is
+rematerialised by itself, vi_jax._saved_nodes.each_step_rematerialised): XLA's compiled memory analysis of the
 jitted gradient (temporary buffers) and the peak resident memory above the process's baseline
 (``resource.getrusage``), with the gradient/forward time ratio. Variants: ``plain``,
 ``checkpoint`` (``simulate(checkpoint=True)``: blockwise rematerialisation over blocks of 128
@@ -166,17 +167,17 @@ def main():
     memory = []
     for kind, variants in (("final", ("plain", "checkpoint")), ("every-step", ("plain", "checkpoint"))):
         for variant in variants:
-            for n in args.sizes:
-                row = _child(["--child-memory", kind, variant, str(n)], FAST_LOOPS_FLAG)
+            for n, config in [(n, c) for c in (("tuned",) if variant == "plain" else CONFIGS) for n in args.sizes]:
+                row = dict(config=config, **_child(["--child-memory", kind, variant, str(n)], CONFIGS[config]))
                 memory.append(row)
                 print(
-                    f"  {kind:10s} {variant:10s} {n:>9d} steps: temp {row['temp_bytes'] / 1e6:10.2f} MB, "
+                    f"  {kind:10s} {variant:10s} {config:8s} {n:>9d} steps: temp {row['temp_bytes'] / 1e6:10.2f} MB, "
                     f"peak RSS +{row['peak_rss_above_baseline_bytes'] / 1e6:9.1f} MB, gradient {row['ratio']:.2f}× forward",
                     flush=True,
                 )
     print("\nGrowth of XLA's temporary memory per ×10 steps (final-state loss):")
     for variant in ("plain", "checkpoint"):
-        temps = [r["temp_bytes"] for r in memory if r["loss"] == "final" and r["variant"] == variant]
+        temps = [r["temp_bytes"] for r in memory if r["loss"] == "final" and r["variant"] == variant and r["config"] == "tuned"]
         factors = [b / a for a, b in zip(temps, temps[1:])]
         print(f"  {variant:10s} " + "  ".join(f"×{f:.2f}" for f in factors))
     import jax

@@ -3,7 +3,8 @@ XLA:CPU's default loop plan, are as many nodes as keep the step's loop body with
 the thunk executor runs in order (:func:`vi_jax._saved_nodes.step_block`). The blocks change
 where the loops split, never the steps: a traced run equals the concrete run at every length
 around a block boundary. A concrete run saving every step runs blocks of steps too, in a loop of
-traced length whose last block's steps past the run change nothing."""
+traced length whose last block's steps past the run change nothing. Checkpointed reverse mode
+on that plan rematerialises step by step in blocks of the same kind."""
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 import vi_jax as vj
-from vi_jax._saved_nodes import SAVE_BLOCK, SEQUENTIAL_BYTES, step_block
+from vi_jax._saved_nodes import SAVE_BLOCK, SEQUENTIAL_BYTES, each_step_rematerialised, scan_saved_nodes, step_block
 from vi_jax.discrete import legendre_initial_state
 from vi_jax.engine import _advance
 from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
@@ -55,6 +56,70 @@ def test_the_block_follows_the_loop_plan(monkeypatch):
     assert _advance._node_block(state, 1) == SAVE_BLOCK
     assert _advance._initial_node_in_scan(1)  # every node in one scan: no block asked for
     assert not _advance._initial_node_in_scan(2)
+
+
+def test_a_step_rematerialised_stores_its_input_carry_alone():
+    """Each step rematerialised (blocks of 4 steps and a rest): reverse mode stores the steps'
+    input carries, nothing of their inside (a plain scan stores six arrays a step here), and
+    the gradient is the plain scan's to the bit (the same operations, recomputed)."""
+    A = jnp.arange(9.0).reshape(3, 3) / 10
+
+    def step(carry, _):
+        x, worst = carry
+        y = jnp.tanh(A @ x) * jnp.cos(x) + jnp.exp(-(x**2))
+        return (x + 0.1 * y, jnp.maximum(worst, jnp.max(y))), None
+
+    n, x = 10, jnp.array([0.3, -0.2, 0.5])
+    each = lambda x: each_step_rematerialised(step, (x, jnp.zeros(())), n, 4)[0]  # noqa: E731
+    plain = lambda x: jax.lax.scan(step, (x, jnp.zeros(())), None, length=n)[0][0]  # noqa: E731
+    residual_bytes = lambda f: sum(r.nbytes for r in jax.tree.leaves(jax.vjp(f, x)[1]))  # noqa: E731
+    assert residual_bytes(each) == A.nbytes + n * x.nbytes
+    assert residual_bytes(plain) > A.nbytes + 5 * n * x.nbytes
+    gradient = lambda f: jax.grad(lambda x: jnp.sum(f(x) ** 2))(x)  # noqa: E731
+    np.testing.assert_array_equal(gradient(each), gradient(plain))
+
+
+@pytest.mark.parametrize("save_every", [1, 3, SAVE_BLOCK + 1])
+def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_plan(monkeypatch, save_every):
+    """``checkpoint=True`` on XLA:CPU's default loop plan rematerialises every step by itself, in
+    blocks whose largest leaf fits ``SEQUENTIAL_BYTES`` (reverse mode through a scan otherwise
+    keeps a buffer of the run's length for each of a step's intermediate values, and a loop body
+    with such a buffer has its operations handed to the thread pool: ``python
+    benchmarks/gradients.py``); not with ``checkpoint=False``, the loop option or on an
+    accelerator."""
+    model, x0 = vj.models.UnderwaterVehicle(), vj.models.UnderwaterVehicle().initial_state()
+    blocks = []
+
+    def recorded(step, carry, n, block):
+        largest = max(x.size * x.dtype.itemsize for x in jax.tree.leaves(carry))
+        blocks.append((block, largest))
+        return each_step_rematerialised(step, carry, n, block)
+
+    def recorded_nodes(*args, nodes=True, blocks=True):
+        remat.append((nodes, blocks))
+        return scan_saved_nodes(*args, nodes=nodes, blocks=blocks)
+
+    remat = []
+    monkeypatch.setattr(_advance, "each_step_rematerialised", recorded)
+    monkeypatch.setattr(_advance, "scan_saved_nodes", recorded_nodes)
+
+    def traced(flags, checkpoint=True):
+        monkeypatch.setenv("XLA_FLAGS", flags)
+        blocks.clear()
+        loss = lambda m: jnp.sum(vj.simulate(m, x0, 0.01, 2 * save_every, save_every=save_every, checkpoint=checkpoint).q)  # noqa: E731
+        jax.make_jaxpr(jax.grad(loss))(model)
+        return list(blocks)
+
+    found = traced("")
+    if save_every == 1:  # the node is the step: rematerialised by itself, its blocks not
+        assert found == [] and remat[-1] == (True, False)
+    else:  # the node's steps are: the node is not, its blocks are
+        assert found and all(b * largest <= SEQUENTIAL_BYTES < (b + 1) * largest for b, largest in found)
+        assert remat[-1] == (False, True)
+    assert traced("", checkpoint=False) == []
+    assert traced(FAST_LOOPS_FLAG) == []
+    monkeypatch.setattr(_advance, "target_platform", lambda: "gpu")
+    assert traced("") == []
 
 
 @pytest.mark.parametrize("n_steps", [1, 3, 4, 5, 11, SAVE_BLOCK + 3])

@@ -11,24 +11,26 @@ SAVE_BLOCK = 128  # saved nodes per inner scan: one long output buffer costs XLA
 SEQUENTIAL_BYTES = 512  # XLA:CPU runs a loop body's operations in order when no buffer is larger
 
 
-def scan_saved_nodes(node, state, length, checkpoint=False, block=SAVE_BLOCK):
+def scan_saved_nodes(node, state, length, checkpoint=False, block=SAVE_BLOCK, *, nodes=True, blocks=True):
     """``length`` applications of ``node(state, None) -> (state, out)`` through a two-level scan
     (blocks of ``block`` nodes; benchmarks/step_cost.py); returns (final state, the outs
     stacked). With ``checkpoint``, reverse mode stores only the states at block boundaries and
-    at the nodes, and recomputes what lies between them."""
-    if checkpoint:
+    at the nodes, and recomputes what lies between them; ``nodes=False`` / ``blocks=False``
+    leave the nodes / the blocks unrematerialised (for nodes whose steps are rematerialised
+    one by one, :func:`each_step_rematerialised`)."""
+    if checkpoint and nodes:
         node = jax.checkpoint(node)
 
-    def nodes(state, _):
+    def scan_block(state, _):
         return jax.lax.scan(node, state, None, length=block)
 
-    if checkpoint:
-        nodes = jax.checkpoint(nodes)
+    if checkpoint and blocks:
+        scan_block = jax.checkpoint(scan_block)
 
     n_blocks, rest = divmod(length, block)
     pieces = []
     if n_blocks:
-        state, out = jax.lax.scan(nodes, state, None, length=n_blocks)
+        state, out = jax.lax.scan(scan_block, state, None, length=n_blocks)
         pieces.append(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out))
     if rest:
         state, out = jax.lax.scan(node, state, None, length=rest)
@@ -36,9 +38,31 @@ def scan_saved_nodes(node, state, length, checkpoint=False, block=SAVE_BLOCK):
     return state, jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
 
 
-def step_block(state) -> int:
-    """Nodes per block when a node is a single step: the most (a power of two, 2 to
-    ``SAVE_BLOCK``) whose rows of ``state``'s largest leaf fit ``SEQUENTIAL_BYTES``. XLA:CPU's
+def each_step_rematerialised(step, carry, n, block):
+    """``n`` applications of ``step(carry, None) -> (carry, None)``, each rematerialised in
+    reverse mode (it stores the step's input carry and recomputes the step from it), scanned in
+    blocks of ``block`` steps. Reverse mode would otherwise store tens of intermediate arrays a
+    step, each in a buffer as long as the scan, and under XLA:CPU's default loop plan a loop
+    body with a buffer larger than ``SEQUENTIAL_BYTES`` has its fused operations handed to the
+    thread pool one by one (:func:`step_block`); with blocks of ``step_block(carry, False)``
+    steps the inner loops, forward and transposed, hold small buffers only."""
+    step = jax.checkpoint(step, prevent_cse=False)
+
+    def steps(carry, _):
+        return jax.lax.scan(step, carry, None, length=block)[0], None
+
+    n_blocks, rest = divmod(n, block)
+    if n_blocks:
+        carry = jax.lax.scan(steps, carry, None, length=n_blocks)[0]
+    if rest:
+        carry = jax.lax.scan(step, carry, None, length=rest)[0]
+    return carry
+
+
+def step_block(state, power_of_two=True) -> int:
+    """Nodes per block when a node is a single step: the most (2 to ``SAVE_BLOCK``; a power of
+    two unless ``power_of_two`` is False) whose rows of ``state``'s largest leaf fit
+    ``SEQUENTIAL_BYTES``. XLA:CPU's
     thunk executor hands a loop body's fused operations to its thread pool once a buffer is
     larger; a step's operations take well under a microsecond each, so the hand-offs cost more
     than they gain (the vehicle under ``jit``, every node saved, default XLA: 50,000 steps in
@@ -47,7 +71,7 @@ def step_block(state) -> int:
     iteration."""
     largest = max(x.size * x.dtype.itemsize for x in jax.tree.leaves(state))
     fits = max(SEQUENTIAL_BYTES // max(largest, 1), 2)
-    return min(1 << (fits.bit_length() - 1), SAVE_BLOCK)
+    return min(1 << (fits.bit_length() - 1) if power_of_two else fits, SAVE_BLOCK)
 
 
 def rematerialised_steps(steps, carry, n):

@@ -17,7 +17,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._saved_nodes import SAVE_BLOCK, loop_saved_nodes, rematerialised_steps, scan_saved_nodes, step_block
+from .._saved_nodes import (
+    SAVE_BLOCK,
+    each_step_rematerialised,
+    loop_saved_nodes,
+    rematerialised_steps,
+    scan_saved_nodes,
+    step_block,
+)
 from .._xla_flags import loop_option_requested
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
@@ -139,13 +146,21 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     (benchmarks/step_cost.py). With ``checkpoint``, reverse mode stores only the state at block
     boundaries (and at saved nodes) and recomputes the steps inside a block; the steps between
     two saved nodes run as √save_every rematerialised blocks, so memory grows like
-    n/(block·save_every) + block + √save_every states (benchmarks/gradients.py). With the loop
+    n/(block·save_every) + block + √save_every states (benchmarks/gradients.py). On XLA:CPU's
+    default loop plan every step is rematerialised by itself instead of each node
+    (:func:`~vi_jax._saved_nodes.each_step_rematerialised`; with every step saved, each node
+    and not its block): reverse mode then holds no buffer of a block's length of a step's
+    intermediate values, whose loops XLA:CPU runs operation by operation on its thread pool.
+    The vehicle's gradient over 4,000 steps took 8.7–8.9 / 8.2–8.7 / 6.8–7.1 µs a step
+    against 25–26 / 15–16 / 14–14.5 (the final state; a node every 10 steps; every step),
+    1.7–1.8 µs for the forward pass (default XLA, alternate processes of both versions). With the loop
     option and every step saved, the nodes are one scan (:func:`_initial_node_in_scan`) and
     reverse mode stores a state per node, as many as the saved nodes (vehicle, 10⁶ steps, the
     positions' gradient: 289 MB of XLA temporaries, against 50 MB in blocks of 128 nodes).
     """
 
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
+    each_step = checkpoint and _default_cpu_loops()  # steps rematerialised one by one
 
     def worst_step(carry, _):
         state, stats = one_step(carry[0])
@@ -153,6 +168,8 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
 
     def worst_steps(carry, n):  # the worst statistics so far, carried (stacking every step's
         # statistics costs XLA:CPU three writes per step: 0.52 → 0.14 s for 50,000 steps)
+        if each_step:
+            return each_step_rematerialised(worst_step, carry, n, step_block(carry, power_of_two=False))
         return jax.lax.scan(worst_step, carry, None, length=n)[0]
 
     def node_steps(carry):
@@ -170,7 +187,9 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         (_, (state, _)), (rows, stats) = scan_saved_nodes(node, (True, _with_previous(state)), length + 1, checkpoint, length + 1)
         return state, rows, stats
     block = _node_block(state, save_every)
-    (final, _), (saved, stats) = scan_saved_nodes(node, _with_previous(state), length, checkpoint, block)
+    single = save_every == 1  # with each_step, the node is rematerialised, not its block
+    remat = dict(nodes=single or not each_step, blocks=not (single and each_step))
+    (final, _), (saved, stats) = scan_saved_nodes(node, _with_previous(state), length, checkpoint, block, **remat)
     return (final,) + initial_first(state, saved, stats)
 
 
@@ -208,12 +227,18 @@ def _initial_node_first(node, zero):
     return first_or_node
 
 
+def _default_cpu_loops():
+    """Whether the run's loops follow XLA:CPU's default loop plan (a thunk per fused operation;
+    not the loop option's one kernel per loop)."""
+    return target_platform() == "cpu" and not loop_option_requested()
+
+
 def _node_block(state, save_every):
     """Saved nodes per block of :func:`advance_scan`: :func:`step_block` when every step is
     saved under XLA:CPU's default loop plan (where a step's operations would otherwise share a
     loop body with the block's large output buffers), else ``SAVE_BLOCK`` (with the loop option
     a run saving every step does not ask: :func:`_initial_node_in_scan`)."""
-    if save_every == 1 and target_platform() == "cpu" and not loop_option_requested():
+    if save_every == 1 and _default_cpu_loops():
         return step_block(state)
     return SAVE_BLOCK
 
