@@ -14,11 +14,17 @@ import pytest
 import vi_jax as vj
 from vi_jax._saved_nodes import SAVE_BLOCK, SEQUENTIAL_BYTES, each_step_rematerialised, scan_saved_nodes, step_block
 from vi_jax.discrete import legendre_initial_state
-from vi_jax.engine import _advance
+from vi_jax.engine import _advance, _placement
 from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
 
 EPS = np.finfo(np.float64).eps
 SCENES = (vj.models.UnderwaterVehicle, vj.models.HeavyTop, lambda: vj.models.RigidBody(group=vj.lie.SOn(6)))
+
+
+def _on_an_accelerator(monkeypatch):
+    """Programs traced from now on target a GPU (as far as the loop plans ask)."""
+    for module in (_advance, _placement):
+        monkeypatch.setattr(module, "target_platform", lambda: "gpu")
 
 
 def _state(scene, dtype):
@@ -47,7 +53,7 @@ def test_the_block_follows_the_loop_plan(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "")
     assert _advance._node_block(state, 1) == step_block(state) == 4  # 4 rows of a 3×3 float64 g: 288 B
     assert _advance._node_block(state, 2) == SAVE_BLOCK
-    monkeypatch.setattr(_advance, "target_platform", lambda: "gpu")
+    _on_an_accelerator(monkeypatch)
     assert _advance._node_block(state, 1) == SAVE_BLOCK
     monkeypatch.undo()
     monkeypatch.setenv("XLA_FLAGS", "")
@@ -105,7 +111,8 @@ def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_pl
 
     def traced(flags, checkpoint=True):
         monkeypatch.setenv("XLA_FLAGS", flags)
-        blocks.clear()
+        blocks.clear(), remat.clear()
+        jax.clear_caches()  # the plan is chosen at trace time
         loss = lambda m: jnp.sum(vj.simulate(m, x0, 0.01, 2 * save_every, save_every=save_every, checkpoint=checkpoint).q)  # noqa: E731
         jax.make_jaxpr(jax.grad(loss))(model)
         return list(blocks)
@@ -116,10 +123,10 @@ def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_pl
     else:  # the node's steps are: the node is not, its blocks are
         assert found and all(b * largest <= SEQUENTIAL_BYTES < (b + 1) * largest for b, largest in found)
         assert remat[-1] == (False, True)
-    assert traced("", checkpoint=False) == []
-    assert traced(FAST_LOOPS_FLAG) == []
-    monkeypatch.setattr(_advance, "target_platform", lambda: "gpu")
-    assert traced("") == []
+    assert traced("", checkpoint=False) == [] and remat
+    assert traced(FAST_LOOPS_FLAG) == [] and remat[-1] == (True, True)
+    _on_an_accelerator(monkeypatch)
+    assert traced("") == [] and remat[-1] == (True, True)
 
 
 @pytest.mark.parametrize("n_steps", [1, 3, 4, 5, 11, SAVE_BLOCK + 3])

@@ -360,6 +360,62 @@ def test_gradients_match_central_differences():
     _check_directional(lambda h: loss((VEHICLE, x0.xi, h)), args[2], grads[2], jnp.asarray(1.0), 1e-7)
 
 
+@pytest.mark.parametrize("save_every", [1, 3])
+def test_checkpointed_gradient_equals_plain_gradient(save_every):
+    """``checkpoint=True`` (the default) only rematerialises — on XLA:CPU's default loop plan
+    every node saved runs in blocks of nodes each rematerialised, a node every few steps has each
+    stage rematerialised: the gradient equals the stored one to round-off (1e-12 relative; a
+    recomputed stage is the same arithmetic)."""
+    x0 = VEHICLE.initial_state()
+
+    def loss(model, checkpoint):
+        return _loss(vj.simulate(model, x0, 0.05, 24, scheme="splitting", order=4, save_every=save_every, checkpoint=checkpoint))
+
+    plain, checkpointed = (eqx.filter_grad(loss)(VEHICLE, c) for c in (False, True))
+    for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(checkpointed), strict=True):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(a))))
+
+
+@pytest.mark.parametrize("save_every", [1, 3])
+def test_the_rematerialisation_follows_the_loop_plan(monkeypatch, save_every):
+    """On XLA:CPU's default loop plan: every node saved in blocks of ``step_block`` nodes, the
+    nodes rematerialised and not their blocks; a node every few steps with each stage
+    rematerialised (in blocks of stages) and not the node. With the loop option: blocks of
+    ``SAVE_BLOCK`` nodes, nodes and blocks rematerialised, as before."""
+    from vi_jax import _saved_nodes
+    from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
+
+    stages, scans = [], []
+
+    def each_stage(*args):
+        stages.append(args[-1])
+        return _saved_nodes.each_step_rematerialised(*args)
+
+    def scan(node, phase, n, checkpoint, block=_saved_nodes.SAVE_BLOCK, **remat):
+        scans.append((block, remat))
+        return _saved_nodes.scan_saved_nodes(node, phase, n, checkpoint, block, **remat)
+
+    monkeypatch.setattr(S, "each_step_rematerialised", each_stage)
+    monkeypatch.setattr(S, "scan_saved_nodes", scan)
+    x0 = VEHICLE.initial_state()
+
+    def traced(flags):
+        monkeypatch.setenv("XLA_FLAGS", flags)
+        stages.clear(), scans.clear()
+        jax.clear_caches()  # the plan is chosen at trace time
+        loss = lambda m: _loss(vj.simulate(m, x0, 0.05, 2 * save_every, scheme="splitting", save_every=save_every))  # noqa: E731
+        jax.make_jaxpr(eqx.filter_grad(loss))(VEHICLE)
+        return list(stages), list(scans)
+
+    found_stages, found_scans = traced("")
+    if save_every == 1:
+        ((block, remat),) = found_scans
+        assert found_stages == [] and 2 <= block < _saved_nodes.SAVE_BLOCK and remat == {"blocks": False}
+    else:
+        assert found_stages and found_scans == [(_saved_nodes.SAVE_BLOCK, {"nodes": False})]
+    assert traced(FAST_LOOPS_FLAG) == ([], [(_saved_nodes.SAVE_BLOCK, {"nodes": True})])
+
+
 def test_principal_axes_derivative():
     """The JVP of J ↦ (U, I) against central differences for a full J (eigenvectors turn), and
     finite at equal moments (the heavy top's (1, 1, 0.4)), where along a diagonal direction the

@@ -38,6 +38,16 @@ def scan_saved_nodes(node, state, length, checkpoint=False, block=SAVE_BLOCK, *,
     return state, jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
 
 
+def default_cpu_loops() -> bool:
+    """Whether the loops of a program traced now follow XLA:CPU's default loop plan (a thunk
+    per fused operation: :func:`step_block`), not the loop option's one kernel per loop or an
+    accelerator's."""
+    from ._xla_flags import loop_option_requested
+    from .engine._placement import target_platform
+
+    return target_platform() == "cpu" and not loop_option_requested()
+
+
 def each_step_rematerialised(step, carry, n, block):
     """``n`` applications of ``step(carry, None) -> (carry, None)``, each rematerialised in
     reverse mode (it stores the step's input carry and recomputes the step from it), scanned in

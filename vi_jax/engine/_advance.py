@@ -19,6 +19,7 @@ from jaxtyping import Array, Float, Int
 
 from .._saved_nodes import (
     SAVE_BLOCK,
+    default_cpu_loops,
     each_step_rematerialised,
     loop_saved_nodes,
     rematerialised_steps,
@@ -160,7 +161,7 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     """
 
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
-    each_step = checkpoint and _default_cpu_loops()  # steps rematerialised one by one
+    each_step = checkpoint and default_cpu_loops()  # steps rematerialised one by one
 
     def worst_step(carry, _):
         state, stats = one_step(carry[0])
@@ -227,18 +228,12 @@ def _initial_node_first(node, zero):
     return first_or_node
 
 
-def _default_cpu_loops():
-    """Whether the run's loops follow XLA:CPU's default loop plan (a thunk per fused operation;
-    not the loop option's one kernel per loop)."""
-    return target_platform() == "cpu" and not loop_option_requested()
-
-
 def _node_block(state, save_every):
     """Saved nodes per block of :func:`advance_scan`: :func:`step_block` when every step is
     saved under XLA:CPU's default loop plan (where a step's operations would otherwise share a
     loop body with the block's large output buffers), else ``SAVE_BLOCK`` (with the loop option
     a run saving every step does not ask: :func:`_initial_node_in_scan`)."""
-    if save_every == 1 and _default_cpu_loops():
+    if save_every == 1 and default_cpu_loops():
         return step_block(state)
     return SAVE_BLOCK
 
