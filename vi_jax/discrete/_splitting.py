@@ -273,11 +273,12 @@ def advance(parts, method, arrangement, h, phase, n_saved, save_every, checkpoin
 
     On XLA:CPU's default loop plan (:func:`~vi_jax._saved_nodes.step_block`) every step saved
     runs in blocks of ``step_block`` nodes, each node rematerialised, not its block; with a node
-    every few steps each stage is rematerialised by itself instead of the node. The vehicle, 4,000
-    steps of Strang's splitting under ``jit`` (alternate processes of both versions): every node
-    saved, forward 4.65 → 1.09 µs a step, its gradient 13.9 → 5.4–5.7; a node every 10 steps,
-    gradient 16.6 → 6.4 (forward 0.8); the heavy top 1.07 → 0.55, 10.1 → 2.8–2.9 and
-    19.1 → 3.4."""
+    every few steps each stage is rematerialised by itself instead of the node (``python
+    benchmarks/reverse_mode_plan.py``, 4,000 steps under ``jit``, µs a step against the plan of
+    blocks of 128 nodes, each node rematerialised): vehicle, Strang, every node saved: forward
+    4.85 → 1.24, gradient 18.1 → 6.3; a node every 10 steps: gradient 16.4 → 6.7 but forward
+    0.84 → 0.99 (the stages run in loops of 7: the heavy top 0.40 → 0.70, its gradient
+    12.6 → 3.5; ``checkpoint=False`` keeps the single loop; concrete calls do not use this)."""
     flows = piece_flows(parts)
     pieces = arrange(tuple(flows), arrangement)
     table = stage_table(method)
