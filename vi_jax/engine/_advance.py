@@ -152,9 +152,9 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     (:func:`~vi_jax._saved_nodes.each_step_rematerialised`; with every step saved, each node
     and not its block): reverse mode then holds no buffer of a block's length of a step's
     intermediate values, whose loops XLA:CPU runs operation by operation on its thread pool.
-    The vehicle's gradient over 4,000 steps took 8.7–8.9 / 8.2–8.7 / 6.8–7.1 µs a step
-    against 25–26 / 15–16 / 14–14.5 (the final state; a node every 10 steps; every step),
-    1.7–1.8 µs for the forward pass (default XLA, alternate processes of both versions). With the loop
+    The vehicle's gradient over 4,000 steps took 9.1 / 9.0 / 7.6 µs a step against
+    24.2 / 14.2 / 13.5 (the final state; a node every 10 steps; every step), 1.7–1.8 µs for the
+    forward pass (default XLA, ``python benchmarks/reverse_mode_plan.py``). With the loop
     option and every step saved, the nodes are one scan (:func:`_initial_node_in_scan`) and
     reverse mode stores a state per node, as many as the saved nodes (vehicle, 10⁶ steps, the
     positions' gradient: 289 MB of XLA temporaries, against 50 MB in blocks of 128 nodes).
@@ -188,8 +188,9 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         (_, (state, _)), (rows, stats) = scan_saved_nodes(node, (True, _with_previous(state)), length + 1, checkpoint, length + 1)
         return state, rows, stats
     block = _node_block(state, save_every)
-    single = save_every == 1  # with each_step, the node is rematerialised, not its block
-    remat = dict(nodes=single or not each_step, blocks=not (single and each_step))
+    remat = {}
+    if each_step:  # a node of one step is rematerialised, not its block; else its steps, not it
+        remat = dict(blocks=False) if save_every == 1 else dict(nodes=False)
     (final, _), (saved, stats) = scan_saved_nodes(node, _with_previous(state), length, checkpoint, block, **remat)
     return (final,) + initial_first(state, saved, stats)
 
