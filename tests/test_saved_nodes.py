@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 import vi_jax as vj
-from vi_jax._saved_nodes import SAVE_BLOCK, SEQUENTIAL_BYTES, each_step_rematerialised, scan_saved_nodes, step_block
+from vi_jax._saved_nodes import (
+    SAVE_BLOCK,
+    SEQUENTIAL_BYTES,
+    checkpointed,
+    each_step_rematerialised,
+    scan_saved_nodes,
+    step_block,
+)
 from vi_jax.discrete import legendre_initial_state
 from vi_jax.engine import _advance, _placement
 from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
@@ -85,6 +92,45 @@ def test_a_step_rematerialised_stores_its_input_carry_alone():
     np.testing.assert_array_equal(gradient(each), gradient(plain))
 
 
+def _scan_lengths(closed):
+    """The lengths of every scan in a jaxpr, its sub-jaxprs included."""
+    lengths = []
+    for eqn in closed.jaxpr.eqns:
+        if eqn.primitive.name == "scan":
+            lengths.append(eqn.params["length"])
+        for value in eqn.params.values():
+            for sub in value if isinstance(value, (tuple, list)) else (value,):
+                if isinstance(sub, jax.extend.core.ClosedJaxpr):
+                    lengths += _scan_lengths(sub)
+                elif isinstance(sub, jax.extend.core.Jaxpr):
+                    lengths += _scan_lengths(jax.extend.core.ClosedJaxpr(sub, ()))
+    return sorted(lengths)
+
+
+def test_only_differentiation_sees_the_checkpoints():
+    """``checkpointed``: without differentiation the steps run in the program without
+    checkpoints (one loop of ``n``); a JVP runs the checkpointed one (blocks of 4 and the rest);
+    gradients with respect to what the step closes over (hoisted for the custom JVP rule) are
+    the plain scan's to the bit, and reverse mode stores the steps' input carries alone."""
+
+    def step_of(a):
+        return lambda x, _: (jnp.sin(a * x) + x, None)
+
+    def program(step, x, checkpoint):
+        return each_step_rematerialised(step, x, n, 4) if checkpoint else jax.lax.scan(step, x, None, length=n)[0]
+
+    n, a, x = 10, jnp.array(0.7), jnp.array([0.3, -0.2])
+    mine = lambda a, x: checkpointed(program, step_of(a), x)  # noqa: E731
+    plain = lambda a, x: jax.lax.scan(step_of(a), x, None, length=n)[0]  # noqa: E731
+    assert _scan_lengths(jax.make_jaxpr(mine)(a, x)) == [n]
+    assert _scan_lengths(jax.make_jaxpr(lambda a, x: jax.jvp(mine, (a, x), (a, x)))(a, x)) == [2, 2, 4]
+    residuals = jax.vjp(mine, a, x)[1]
+    assert sum(r.size for r in jax.tree.leaves(residuals) if r.size > 1) == n * x.size
+    gradient = lambda f: jax.grad(lambda a, x: jnp.sum(f(a, x) ** 2), argnums=(0, 1))(a, x)  # noqa: E731
+    for value, reference in zip(gradient(mine), gradient(plain)):
+        np.testing.assert_array_equal(value, reference)
+
+
 @pytest.mark.parametrize("save_every", [1, 3, SAVE_BLOCK + 1])
 def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_plan(monkeypatch, save_every):
     """``checkpoint=True`` on XLA:CPU's default loop plan rematerialises every step by itself, in
@@ -127,6 +173,23 @@ def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_pl
     assert traced(FAST_LOOPS_FLAG) == [] and remat[-1] == (True, True)
     _on_an_accelerator(monkeypatch)
     assert traced("") == [] and remat[-1] == (True, True)
+
+
+@pytest.mark.parametrize("save_every", [1, 10, SAVE_BLOCK + 1])
+def test_checkpoint_leaves_a_program_that_does_not_differentiate_unchanged(monkeypatch, save_every):
+    """``checkpoint=True`` changes what reverse mode stores, never the forward program: under
+    ``jit`` without differentiation ``vj.simulate`` lowers to the same program as with
+    ``checkpoint=False``, on every loop plan (each step, each node rematerialised)."""
+    model, x0 = vj.models.UnderwaterVehicle(), vj.models.UnderwaterVehicle().initial_state()
+
+    def lowered(flags, checkpoint):
+        monkeypatch.setenv("XLA_FLAGS", flags)
+        jax.clear_caches()  # the plan is chosen at trace time
+        run = lambda m: vj.simulate(m, x0, 0.01, 2 * save_every, save_every=save_every, checkpoint=checkpoint).q  # noqa: E731
+        return jax.jit(run).lower(model).as_text(debug_info=False)
+
+    for flags in ("", FAST_LOOPS_FLAG):
+        assert lowered(flags, True) == lowered(flags, False)
 
 
 @pytest.mark.parametrize("n_steps", [1, 3, 4, 5, 11, SAVE_BLOCK + 3])

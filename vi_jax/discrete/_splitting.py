@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _validation as val
-from .._saved_nodes import default_cpu_loops, each_step_rematerialised, scan_saved_nodes, step_block
+from .._saved_nodes import checkpointed, default_cpu_loops, each_step_rematerialised, scan_saved_nodes, step_block
 from .._system import State
 from ..lie import SO3
 from ._splitting_pieces import from_phase, piece_flows, separable_parts, to_phase, velocities
@@ -231,7 +231,8 @@ def _steps(flows, order, table, h, s, n, remat_block=None):
     option, and compiles longer). Leading rows of zeros in ``table`` are exact no-ops (every
     piece's flow over time 0 is the identity to the bit: cos 0 = 1, sin 0 = 0, kicks by 0).
     ``remat_block``: reverse mode rematerialises each stage by itself, in blocks of as many
-    stages (:func:`~vi_jax._saved_nodes.each_step_rematerialised`)."""
+    stages (:func:`~vi_jax._saved_nodes.each_step_rematerialised`; a program that does not
+    differentiate runs one loop: :func:`~vi_jax._saved_nodes.checkpointed`)."""
     table = jnp.asarray(table, h.dtype)
     n_stages = table.shape[0]
 
@@ -243,8 +244,14 @@ def _steps(flows, order, table, h, s, n, remat_block=None):
     if isinstance(n, int) and n * n_stages == 1:
         return body(0, s)
     if remat_block:
+
+        def program(stage, carry, checkpoint):
+            if checkpoint:
+                return each_step_rematerialised(stage, carry, n * n_stages, remat_block)
+            return jax.lax.scan(stage, carry, None, length=n * n_stages)[0]
+
         stage = lambda carry, _: ((carry[0] + 1, body(*carry)), None)  # noqa: E731
-        return each_step_rematerialised(stage, (jnp.asarray(0, jnp.int32), s), n * n_stages, remat_block)[1]
+        return checkpointed(program, stage, (jnp.asarray(0, jnp.int32), s))[1]
     return jax.lax.fori_loop(0, n * n_stages, body, s)
 
 
@@ -276,9 +283,11 @@ def advance(parts, method, arrangement, h, phase, n_saved, save_every, checkpoin
     every few steps each stage is rematerialised by itself instead of the node (``python
     benchmarks/reverse_mode_plan.py``, 4,000 steps under ``jit``, µs a step against the plan of
     blocks of 128 nodes, each node rematerialised): vehicle, Strang, every node saved: forward
-    4.85 → 1.24, gradient 18.1 → 6.3; a node every 10 steps: gradient 16.4 → 6.7 but forward
-    0.84 → 0.99 (the stages run in loops of 7: the heavy top 0.40 → 0.70, its gradient
-    12.6 → 3.5; ``checkpoint=False`` keeps the single loop; concrete calls do not use this)."""
+    4.85 → 1.24, gradient 18.1 → 6.3; a node every 10 steps: gradient 16.4 → 6.7 (the heavy
+    top 12.6 → 3.5). The stages' blocks are seen by differentiation only
+    (:func:`~vi_jax._saved_nodes.checkpointed`): a program that does not differentiate runs them
+    in one loop (the heavy top, a node every 10 steps: 0.39 µs a step, as with
+    ``checkpoint=False``; 0.70 while its forward pass ran the blocks too)."""
     flows = piece_flows(parts)
     pieces = arrange(tuple(flows), arrangement)
     table = stage_table(method)

@@ -19,6 +19,7 @@ from jaxtyping import Array, Float, Int
 
 from .._saved_nodes import (
     SAVE_BLOCK,
+    checkpointed,
     default_cpu_loops,
     each_step_rematerialised,
     loop_saved_nodes,
@@ -158,9 +159,23 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     option and every step saved, the nodes are one scan (:func:`_initial_node_in_scan`) and
     reverse mode stores a state per node, as many as the saved nodes (vehicle, 10⁶ steps, the
     positions' gradient: 289 MB of XLA temporaries, against 50 MB in blocks of 128 nodes).
+    Only differentiation sees these checkpoints: a program that does not differentiate runs the
+    loops of ``checkpoint=False`` (:func:`~vi_jax._saved_nodes.checkpointed`).
     """
 
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
+
+    def program(one_step, carry, checkpoint):
+        return _scanned_nodes(one_step, carry, length, save_every, checkpoint)
+
+    if checkpoint:  # the program of checkpoint=False unless differentiated
+        return checkpointed(program, one_step, _with_previous(state))
+    return program(one_step, _with_previous(state), False)
+
+
+def _scanned_nodes(one_step, carry, length, save_every, checkpoint):
+    """:func:`advance_scan`'s loops over the carry (state, ξ_{k−1}) of ``one_step``."""
+    state = carry[0]
     each_step = checkpoint and default_cpu_loops()  # steps rematerialised one by one
 
     def worst_step(carry, _):
@@ -185,13 +200,13 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
 
     if _initial_node_in_scan(save_every):
         node = _initial_node_first(node, StepStats.zeros(_dtype(state)))
-        (_, (state, _)), (rows, stats) = scan_saved_nodes(node, (True, _with_previous(state)), length + 1, checkpoint, length + 1)
+        (_, (state, _)), (rows, stats) = scan_saved_nodes(node, (True, carry), length + 1, checkpoint, length + 1)
         return state, rows, stats
     block = _node_block(state, save_every)
     remat = {}
     if each_step:  # a node of one step is rematerialised, not its block; else its steps, not it
         remat = dict(blocks=False) if save_every == 1 else dict(nodes=False)
-    (final, _), (saved, stats) = scan_saved_nodes(node, _with_previous(state), length, checkpoint, block, **remat)
+    (final, _), (saved, stats) = scan_saved_nodes(node, carry, length, checkpoint, block, **remat)
     return (final,) + initial_first(state, saved, stats)
 
 
