@@ -10,7 +10,8 @@ the splitting saved every node in blocks of 128. Both plans are compiled in one 
 plan is chosen at trace time: patched while each program is traced, then compiled ahead of
 time) and timed alternately, with the forward pass of the current plan and of
 ``checkpoint=False`` (forward passes and gradients apart); vehicle (DEP order 1
-and Strang's splitting) and heavy top (splitting), ``jit``, float64, µs per step. With
+and Strang's splitting) and heavy top (splitting), ``jit``, float64, µs per step, with each
+program's trace + compile time (after ``jax.clear_caches()``, the less of two). With
 ``--fast-loops`` the loop option is on: there ``vj.simulate`` keeps the node plan, and the
 "each step" row forces the other plan to show what it would cost.
 """
@@ -18,6 +19,7 @@ and Strang's splitting) and heavy top (splitting), ``jit``, float64, µs per ste
 import argparse
 import contextlib
 import sys
+import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -77,7 +79,7 @@ def main():
             q = sol.g if sol.q is None else sol.q
             return jnp.mean(q[-1] ** 2) if save_every == n else jnp.mean(q**2)
 
-        programs = {}
+        programs, compile_s = {}, {}
         for name, fn, each_step in (
             ("forward", loss, True),
             ("forward, nodes rematerialised (plan before)", loss, False),
@@ -86,8 +88,13 @@ def main():
             ("gradient, each node rematerialised (plan before)", jax.value_and_grad(loss), False),
         ):
             with plan(each_step if not args.fast_loops or "gradient" in name else False):
-                jax.clear_caches()
-                programs[name] = jax.jit(fn).lower(dynamic).compile()
+                seconds = []
+                for _ in range(2):  # the first trace after clear_caches also pays for shared helpers
+                    jax.clear_caches()
+                    start = time.perf_counter()
+                    programs[name] = jax.jit(fn).lower(dynamic).compile()
+                    seconds.append(time.perf_counter() - start)
+                compile_s[name] = min(seconds)
         # Forward passes and gradients timed apart: a run of a few ms right after a large
         # program pays for the caches that program left (0.40 -> 0.51 us a step).
         calls = {k: (lambda p=p: p(dynamic)) for k, p in programs.items()}
@@ -96,8 +103,10 @@ def main():
             times.update(time_alternately({k: c for k, c in calls.items() if k.startswith(kind)}))
         forward = times["forward"]
         for name, t in times.items():
-            rows.append(dict(scene=scene, scheme=scheme, save_every=save_every, program=name, us_per_step=1e6 * t / n, over_forward=t / forward))
-            print(f"{scene:9s} {scheme:9s} every {save_every:5d}  {name:50s} {1e6 * t / n:7.2f} µs/step  {t / forward:6.2f}× forward", flush=True)
+            rows.append(dict(scene=scene, scheme=scheme, save_every=save_every, program=name, us_per_step=1e6 * t / n,
+                             over_forward=t / forward, trace_and_compile_s=compile_s[name]))
+            print(f"{scene:9s} {scheme:9s} every {save_every:5d}  {name:50s} {1e6 * t / n:7.2f} µs/step  {t / forward:6.2f}× forward"
+                  f"  trace + compile {compile_s[name]:5.2f} s", flush=True)
     write_config_json("reverse_mode_plan", args.fast_loops, args.out, jax=jax.__version__, steps=n, rows=rows)
 
 

@@ -286,8 +286,8 @@ def advance(parts, method, arrangement, h, phase, n_saved, save_every, checkpoin
     4.85 → 1.24, gradient 18.1 → 6.3; a node every 10 steps: gradient 16.4 → 6.7 (the heavy
     top 12.6 → 3.5). The stages' blocks are seen by differentiation only
     (:func:`~vi_jax._saved_nodes.checkpointed`): a program that does not differentiate runs them
-    in one loop (the heavy top, a node every 10 steps: 0.39 µs a step, as with
-    ``checkpoint=False``; 0.70 while its forward pass ran the blocks too)."""
+    in one loop (the heavy top, a node every 10 steps: 0.40 µs a step, 0.38 with
+    ``checkpoint=False``; 0.45 while its forward pass ran the blocks too)."""
     flows = piece_flows(parts)
     pieces = arrange(tuple(flows), arrangement)
     table = stage_table(method)
