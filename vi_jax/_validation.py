@@ -15,6 +15,20 @@ def is_concrete(x) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
+def outside_transformations() -> bool:
+    """Whether no transformation (``jit``, ``grad``, ``vmap``, …) is tracing the caller. False
+    where this JAX no longer tells (callers then take their traced path, never wrongly the other)."""
+    find = getattr(jax.extend.core, "find_top_trace", None)
+    return find is not None and type(find(())).__name__ == "EvalTrace"
+
+
+def is_eager(x) -> bool:
+    """Whether a call with inputs ``x`` runs eagerly: ``x`` concrete and no transformation
+    tracing the caller. Concrete inputs alone do not say so: a scene's function may close over
+    a traced value (e.g. a Lagrangian closing over a parameter being differentiated)."""
+    return is_concrete(x) and outside_transformations()
+
+
 def is_batched(x) -> bool:
     """Whether a leaf of ``x`` is being batched by ``jax.vmap`` (a batch tracer)."""
     return any(isinstance(leaf, jax.core.Tracer) and hasattr(leaf, "batch_dim") for leaf in jax.tree_util.tree_leaves(x))

@@ -28,9 +28,9 @@ import os
 
 import equinox as eqx
 import jax
-import jax.extend
 import numpy as np
 
+from .. import _validation as val
 from ..solvers._newton import without_implicit_gradients
 from ._placement import target_platform
 
@@ -51,19 +51,11 @@ def accepted(option: str, value) -> bool:
     return True
 
 
-def _at_top_level() -> bool:
-    """Whether no transformation is tracing the caller: compile options go with top-level calls
-    only (a ``jit`` nested in another is compiled with the outer one's options). False where this
-    JAX no longer tells (the option is then left out, never wrongly applied)."""
-    find = getattr(jax.extend.core, "find_top_trace", None)
-    return find is not None and type(find(())).__name__ == "EvalTrace"
-
-
 def options_that_apply(options: dict) -> dict:
     """The compile options of ``options`` a program called now gets: none unless it is called
     outside any transformation and targets the CPU; then those ``XLA_FLAGS`` do not name and
     this XLA has."""
-    if not (_at_top_level() and target_platform() == "cpu"):
+    if not (val.outside_transformations() and target_platform() == "cpu"):
         return {}
     flags = os.environ.get("XLA_FLAGS", "")
     return {k: v for k, v in options.items() if k not in flags and accepted(k, v)}
@@ -95,7 +87,7 @@ def cpu_options_jit(fn, options: dict):
     programs = {}
 
     def chosen():
-        top = _at_top_level()
+        top = val.outside_transformations()
         key = (top, tuple(sorted(options_that_apply(options).items())))
         if key not in programs:
             body = _forward_only(fn) if top else fn

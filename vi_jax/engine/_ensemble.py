@@ -198,8 +198,8 @@ def ensemble(
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
 
-    # Concrete inputs: the DEP step counts are traced, one program per saved-node capacity.
-    concrete = val.is_concrete((dynamic, h))
+    # Eager calls: the DEP step counts are traced, one program per saved-node capacity.
+    concrete = val.is_eager((dynamic, h))
     looped = scheme == "dep" and concrete
 
     def run(dynamic, n_members):

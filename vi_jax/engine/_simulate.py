@@ -122,7 +122,7 @@ def simulate(
     if scheme == "splitting":
         options = dict(order=order, method=None, arrangement=None, checkpoint=checkpoint, dtype=dtype, throw=bool(throw))
         with full_precision():
-            if not val.is_concrete((system, x0, h)):
+            if not val.is_eager((system, x0, h)):
                 sol = simulate_splitting(system, x0, h, n_saved, save_every, progress=False, **options)
             else:
                 with placement(device):
@@ -133,7 +133,7 @@ def simulate(
     rtol = _default_rtol(dtype) if rtol is None else float(rtol)
     options = dict(tau=tau, rule=rule, gammas=gammas, rtol=rtol, max_iter=max_newton_iterations)
     with full_precision():
-        if not val.is_concrete((system, x0, h)):
+        if not val.is_eager((system, x0, h)):
             program = _simulate_scan_batched if val.is_batched((system, x0, h)) else _simulate_scan
             sol = program(system, x0, h, n_saved, save_every=save_every, checkpoint=bool(checkpoint), **options)
         else:

@@ -154,11 +154,11 @@ def time_march(
         rtol=default_rtol(dtype) if rtol is None else float(rtol), max_iterations=int(max_newton_iterations),
     )
     with full_precision():
-        if progress and val.is_concrete((system, args)):
+        if progress and val.is_eager((system, args)):
             engine, carry = _start_jit(system, *args, **options)
             rows = _march.run(engine, carry, n_steps, save_every, progress=True)
             sol = _assemble_jit(engine, rows, save_every)
-        elif val.is_concrete((system, args)):  # traced counts: one program for every length
+        elif val.is_eager((system, args)):  # traced counts: one program for every length
             n_rows = n_steps // save_every + 1
             count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
             sol = _time_march_loop(system, *args, count(n_rows), count(save_every), capacity=saved_capacity(n_rows), **options)
