@@ -105,7 +105,8 @@ def simulate(
     saved-node capacity (1024, or the next power of two above it) and save layout (every step
     saved, or every ``save_every``-th for any ``save_every`` > 1): the step counts are traced
     integers, and so are the sub-step fractions of orders 2, 4 and 6 (one program for the three).
-    Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths.
+    Under a transformation (``jit``, ``grad``, ``jvp``, ``vmap``) the loops have static lengths,
+    also when the inputs are concrete (a scene's function may close over a traced value).
     A conservative run whose energy error says it is meaningless warns (:class:`AccuracyWarning`).
     ``device``: where a concrete run executes — None (the default device; on an accelerator a
     one-time :class:`PerformanceWarning`: single trajectories are latency-bound there), "cpu" or
