@@ -371,10 +371,10 @@ def componentwise(fn, n_members):
         if key not in cache:
             with marking_shared_values():
                 closed, out_shape = jax.make_jaxpr(lambda *xs: fn(*jax.tree.unflatten(tree, xs)), return_shape=True)(*specs)
-            cache[key] = closed, [None if _traced(c) else _constants(c) for c in closed.consts], jax.tree.structure(out_shape)
+            cache[key] = closed, [c if _traced(c) else _constants(c) for c in closed.consts], jax.tree.structure(out_shape)
         closed, consts, out_tree = cache[key]
         # Traced constants are split into components in the trace of this call, never cached.
-        consts = [_constants(c) if _traced(c) else k for c, k in zip(closed.consts, consts)]
+        consts = [_constants(c) if _traced(c) else c for c in consts]
         return jax.tree.unflatten(out_tree, _eval(closed.jaxpr, consts, leaves, n_members, boundary))
 
     return wrapped
