@@ -8,7 +8,8 @@ Each case is one jitted call (scene, states and h as arguments), lowered once an
 per emitter, alternately (``compiler_options={"xla_cpu_use_fusion_emitters": False}`` or not):
 backend compile seconds, and the median of 5 compiled runs per step (single trajectories:
 20,000 steps, every node saved; the beam's time march: 16 nodes, 2000 steps) or per member-step (ensembles: 1024 members × 1000 steps, final
-node saved, ``vj.ensemble``'s default path under ``jit``). A program compiled anew is cached by
+node saved, ``vj.ensemble``'s default path under ``jit``) or per evaluation (the fit's residuals
+and Jacobian: :func:`fit_cases`). A program compiled anew is cached by
 XLA's in-process cache after its first compile: the second compile of each pair is timed on a
 program whose HLO differs by a unique constant.
 """
@@ -53,6 +54,34 @@ def measure(f, args, units, repeats=5):
     return out
 
 
+def fit_cases():
+    """The fit of ``benchmarks/fit_time.py`` (200 samples over 60 s, h = 0.05, order 1): its
+    residuals with their Jacobian at the first guess, for its multiple-shooting stages (64
+    segments) and its single-shooting stage, per evaluation."""
+    import numpy as np
+
+    from vi_jax.fitting import _fit
+    from vi_jax.fitting._parametrisation import FreeParameters, Parametrisation
+    from vi_jax.fitting._shooting import Layout, residuals_and_jacobian, samples_of
+
+    truth = vj.models.UnderwaterVehicle()
+    t = np.concatenate([[0.0], np.sort(np.random.default_rng(0).uniform(0.0, 60.0, 199))])
+    data = vj.synthesize_telemetry(truth, truth.initial_state(), t, sigma={"position": 0.01, "attitude": 0.01}, h=0.05, order=1, seed=2)
+    guess = vj.models.UnderwaterVehicle(added_mass=(80.0, 55.0, 90.0), inertia=(4.5, 6.5, 5.0), buoyancy_offset=(0.003, -0.004, -0.012))
+    model_of = FreeParameters(Parametrisation(guess), guess, _fit.DEFAULT_FREE)
+    n_steps = int(np.ceil(60.0 / _fit.DEFAULT_H - 1e-9))
+    cases = []
+    for segments in (_fit.MAX_SEGMENTS, 1):
+        layout = Layout(t, 0.0, _fit.DEFAULT_H, segments, n_steps)
+        states, R_ref = _fit.estimate_states(data, layout.start_times(), _fit._identity_fallback(segments))
+        run = lambda th, s, R, samples, layout=layout: residuals_and_jacobian(  # noqa: E731
+            th, s, R, model_of, layout, samples, jnp.asarray(1.0), "squared", "cayley", 1
+        )[:2]
+        args = (model_of.initial(), jnp.asarray(states), jnp.asarray(R_ref), samples_of(data))
+        cases.append((f"fit Jacobian, {segments} segment{'s' * (segments > 1)}", run, args, 1))
+    return cases
+
+
 def main():
     scenes = {"vehicle": vj.models.UnderwaterVehicle(), "heavy_top": vj.models.HeavyTop(), "rigid_body": vj.models.RigidBody()}
     cases = []
@@ -72,6 +101,7 @@ def main():
         for order in (1, 2):
             run = lambda m, x, order=order: vj.ensemble(m, x, 0.01, MEMBER_STEPS, order=order, save_every=MEMBER_STEPS, throw=False).M  # noqa: E731
             cases.append((f"ensemble {name} order {order}", run, (model, members), MEMBERS * MEMBER_STEPS))
+    cases += fit_cases()
     rows = []
     print(f"{'case':36s} {'compile fusion / elemental [s]':>32s} {'run fusion / elemental [us per unit]':>38s}")
     for label, f, args, units in cases:

@@ -1,5 +1,5 @@
-"""Per-program compile options (single trajectories: XLA:CPU's elemental emitters; ensembles'
-CPU plan: ENSEMBLE_OPTIONS): vi_jax/engine/_compile_options.py."""
+"""Per-program compile options (single trajectories and the fit's Jacobian: XLA:CPU's elemental
+emitters; ensembles' CPU plan: ENSEMBLE_OPTIONS): vi_jax/engine/_compile_options.py."""
 
 import jax
 import jax.numpy as jnp
@@ -110,4 +110,30 @@ def test_concrete_calls_trace_newton_without_its_gradient_rule(monkeypatch):
     for a, b in ((concrete, traced), (concrete_members, traced_members)):
         for field in ("g", "xi", "M", "energy"):
             np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=1e-11, atol=1e-11)
+    jax.clear_caches()
+
+
+def test_the_fit_jacobian_keeps_newtons_gradient_rule(monkeypatch):
+    """The fit's residual-and-Jacobian program is compiled as a concrete call's programs are
+    (the elemental emitters where this XLA has them; the fit tests check what it computes), but
+    it differentiates inside itself: traced outside any transformation it keeps Newton's
+    implicit-function rule (``custom_root``), which a concrete ``vj.simulate`` call drops."""
+    from vi_jax.fitting import Telemetry
+    from vi_jax.fitting._parametrisation import FreeParameters, Parametrisation
+    from vi_jax.fitting._shooting import Layout, residuals_and_jacobian, samples_of
+
+    model = vj.models.UnderwaterVehicle()
+    x0 = model.initial_state()
+    t = np.linspace(0.0, 1.0, 11)
+    data = Telemetry(t, position=np.zeros((11, 3)), attitude=np.tile(np.eye(3), (11, 1, 1)), sigma={"position": 0.01, "attitude": 0.01})
+    model_of = FreeParameters(Parametrisation(model), model, ("added_mass", "inertia"))
+    state = jnp.concatenate([jnp.zeros(3), x0.xi, x0.q, x0.g.T @ x0.qdot])[None]
+    args = (model_of.initial(), state, x0.g[None], model_of, Layout(t, 0.0, 0.05, 1, 20), samples_of(data),
+            jnp.asarray(0.0), "squared", "cayley", 1)
+    bound = []
+    real = jax.lax.custom_root
+    monkeypatch.setattr(jax.lax, "custom_root", lambda *a, **k: bound.append(1) or real(*a, **k))
+    jax.clear_caches()  # trace the program anew
+    residuals_and_jacobian.lower(*args)
+    assert bound
     jax.clear_caches()

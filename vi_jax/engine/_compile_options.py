@@ -10,6 +10,9 @@ its default fusion emitters (the vehicle at order 1 1.72–1.79 → 1.10 s, orde
 the loop option compile and run within 0.77–1.03×. Ensembles keep the fusion emitters: there the
 generated step at order 2 runs 1.23–1.40× slower with the elemental ones and compiles 1.18–1.32×
 longer (``python benchmarks/emitters.py [--fast-loops]``, two runs with default XLA flags).
+The fit's residual-and-Jacobian program (single trajectories differentiated in forward mode)
+gets the elemental emitters too: 0.66–0.84× the compile time, 0.99–1.11× the run time
+(:func:`vi_jax.fitting._shooting.residuals_and_jacobian`).
 
 Ensembles' generated step (``ENSEMBLE_OPTIONS``) gets copy insertion by region analysis and
 512-bit vectors where the CPU has them: the step's fusion boundaries are conditionals, and
@@ -77,20 +80,21 @@ def _forward_only(fn):
     return traced
 
 
-def cpu_options_jit(fn, options: dict):
+def cpu_options_jit(fn, options: dict, *, forward_only: bool = True):
     """``eqx.filter_jit(fn)``, compiled with :func:`options_that_apply` to ``options``, decided
     at each call (the target follows ``jax.default_device``); one program per choice, each
     reused. Called outside any transformation (concrete inputs: nothing can differentiate it)
     the program is traced without Newton's implicit-function rule, a program of its own (a
-    ``jit`` under a transformation traces ``fn`` with the rule). ``.lower`` lowers the program
-    of the choice."""
+    ``jit`` under a transformation traces ``fn`` with the rule); ``forward_only=False`` keeps
+    the rule there too, for a program that differentiates inside itself (the fit's Jacobian).
+    ``.lower`` lowers the program of the choice."""
     programs = {}
 
     def chosen():
         top = val.outside_transformations()
         key = (top, tuple(sorted(options_that_apply(options).items())))
         if key not in programs:
-            body = _forward_only(fn) if top else fn
+            body = _forward_only(fn) if top and forward_only else fn
             programs[key] = eqx.filter_jit(body, compiler_options=dict(key[1])) if key[1] else eqx.filter_jit(body)
         return programs[key]
 
@@ -102,6 +106,6 @@ def cpu_options_jit(fn, options: dict):
     return program
 
 
-def single_trajectory_jit(fn):
+def single_trajectory_jit(fn, *, forward_only: bool = True):
     """:func:`cpu_options_jit` with XLA:CPU's elemental emitters."""
-    return cpu_options_jit(fn, ELEMENTAL_EMITTERS)
+    return cpu_options_jit(fn, ELEMENTAL_EMITTERS, forward_only=forward_only)

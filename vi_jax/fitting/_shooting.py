@@ -17,6 +17,8 @@ segment depends on no other segment's state), vmapped over the segments, then pu
 interpolation and the residual maps (cheap, linearised once) column by column.
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -24,6 +26,7 @@ import numpy as np
 
 from .._system import State
 from ..engine import simulate
+from ..engine._compile_options import single_trajectory_jit
 from ..lie._so3 import so3_exp, so3_log, unskew3
 from ._robust import robust_residuals
 from ._telemetry import CHANNELS
@@ -126,11 +129,17 @@ def continuity_residuals(nodes, states, R_ref, weight):
     return weight * jnp.concatenate(parts, axis=1).ravel()
 
 
-@eqx.filter_jit
+@functools.partial(single_trajectory_jit, forward_only=False)
 def residuals_and_jacobian(theta_free, states, R_ref, model_of, layout, samples, weight, loss, tau, order):
     """Residuals r (observations, then continuity), their Jacobian with respect to
     (θ_free, states.ravel()), whether every step of every segment succeeded, and the model at
-    the sample times."""
+    the sample times. A program of single trajectories (each segment's forward-mode sweep),
+    compiled with XLA:CPU's elemental emitters as ``vj.simulate``'s concrete calls are, keeping
+    Newton's implicit-function rule for its Jacobian: the two programs of ``python
+    benchmarks/fit_time.py``'s fit compile in 0.66–0.84× the time and run in 0.99–1.11× (``python
+    benchmarks/emitters.py [--fast-loops]``, rows "fit Jacobian"); the first fit took 0.82–0.89×
+    (default XLA) and 0.79–0.86× (loop option) the time of the fusion emitters' in alternate
+    processes."""
     n_free, n_seg = theta_free.size, layout.segments
 
     def one_segment(s, Rr):
