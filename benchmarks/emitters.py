@@ -59,15 +59,13 @@ def fit_cases():
     residuals with their Jacobian at the first guess, for its multiple-shooting stages (64
     segments) and its single-shooting stage, per evaluation."""
     import numpy as np
+    from fit_time import fit_problem
 
     from vi_jax.fitting import _fit
     from vi_jax.fitting._parametrisation import FreeParameters, Parametrisation
     from vi_jax.fitting._shooting import Layout, residuals_and_jacobian, samples_of
 
-    truth = vj.models.UnderwaterVehicle()
-    t = np.concatenate([[0.0], np.sort(np.random.default_rng(0).uniform(0.0, 60.0, 199))])
-    data = vj.synthesize_telemetry(truth, truth.initial_state(), t, sigma={"position": 0.01, "attitude": 0.01}, h=0.05, order=1, seed=2)
-    guess = vj.models.UnderwaterVehicle(added_mass=(80.0, 55.0, 90.0), inertia=(4.5, 6.5, 5.0), buoyancy_offset=(0.003, -0.004, -0.012))
+    _, t, data, guess = fit_problem()
     model_of = FreeParameters(Parametrisation(guess), guess, _fit.DEFAULT_FREE)
     n_steps = int(np.ceil(60.0 / _fit.DEFAULT_H - 1e-9))
     cases = []

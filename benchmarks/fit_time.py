@@ -16,6 +16,18 @@ import numpy as np
 from _timing import parse_args_with_fast_loops, write_config_json
 
 
+def fit_problem():
+    """(truth, sample times, telemetry, first guess) of the timed fit (also
+    ``benchmarks/emitters.py``'s fit rows)."""
+    import vi_jax as vj
+
+    truth = vj.models.UnderwaterVehicle()
+    t = np.concatenate([[0.0], np.sort(np.random.default_rng(0).uniform(0.0, 60.0, 199))])
+    data = vj.synthesize_telemetry(truth, truth.initial_state(), t, sigma={"position": 0.01, "attitude": 0.01}, h=0.05, order=1, seed=2)
+    guess = vj.models.UnderwaterVehicle(added_mass=(80.0, 55.0, 90.0), inertia=(4.5, 6.5, 5.0), buoyancy_offset=(0.003, -0.004, -0.012))
+    return truth, t, data, guess
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="fits, each in this process (the first compiles)")
@@ -26,12 +38,7 @@ def main():
     from vi_jax.fitting import Parametrisation
     from vi_jax.fitting._fit import DEFAULT_FREE
 
-    truth = vj.models.UnderwaterVehicle()
-    x0 = truth.initial_state()
-    rng = np.random.default_rng(0)
-    t = np.concatenate([[0.0], np.sort(rng.uniform(0.0, 60.0, 199))])
-    data = vj.synthesize_telemetry(truth, x0, t, sigma={"position": 0.01, "attitude": 0.01}, h=0.05, order=1, seed=2)
-    guess = vj.models.UnderwaterVehicle(added_mass=(80.0, 55.0, 90.0), inertia=(4.5, 6.5, 5.0), buoyancy_offset=(0.003, -0.004, -0.012))
+    truth, t, data, guess = fit_problem()
     param = Parametrisation(truth)
     true = np.asarray(param.values(truth))[param.indices(DEFAULT_FREE)]
     rows = []
