@@ -1,12 +1,10 @@
 """Members per chunk of the generated batched step on CPU: ``vj.ensemble`` (1024 members × 1000
 steps, final node saved, Cayley) with the chunk size forced to 64, 256, 512 and 1024, compiled
 code only (median of 5); the vehicle at order 1 through the generated step, not its hand
-kernel. Decided ``members_per_chunk`` (``vi_jax/engine/_generated_step.py``): with default XLA
-512 members (``LIGHT_CHUNK``) where the residual with its Jacobian has at most 1000 operations
-per member (the rigid body, the order-1 heavy top and vehicle: a thunk costs the same for 512
-members as for 64), else 64 (``CHUNK``; the order-2 scenes lose up to 2× at 256 or 512); with
-the loop option 64 everywhere. Printed with each row: those operations (``newton_operations``)
-and the chunk size ``vj.ensemble`` picks.
+kernel. Decided ``CHUNK`` (``vi_jax/engine/_member_split.py``): 64 members, each chunk's loops
+one kernel (``vi_jax/_one_kernel.py``). Before the loops were one kernel with default XLA flags,
+512 members ran 1.19-1.53x faster than 64 for the light scenes there (a dispatch per fused
+operation cost the same for 512 members as for 64).
 
     python benchmarks/ensemble_chunks.py [--members 1024] [--steps 1000] [--fast-loops]
 """
@@ -29,9 +27,7 @@ import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
-from vi_jax.discrete import composition_coefficients  # noqa: E402
-from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
-from vi_jax.lie import difference_map  # noqa: E402
+from vi_jax.engine import _ensemble  # noqa: E402
 
 CASES = [("heavy_top", vj.models.HeavyTop, 0.005, 1), ("heavy_top", vj.models.HeavyTop, 0.005, 2),
          ("rigid_body", vj.models.RigidBody, 0.01, 2), ("vehicle", vj.models.UnderwaterVehicle, 0.01, 1),
@@ -55,16 +51,13 @@ def main():
     for name, scene, h, order in CASES:
         model, system_axes = per_member(name, scene(), n)
         states = perturbed_states(scene().initial_state(), n)
-        axes = (jax.tree.map(lambda _: system_axes, model), jax.tree.map(lambda _: 0, states))
-        scheme = (model, states, axes, jnp.asarray(h), difference_map("cayley"), composition_coefficients(order)[0], n)
-        picked, operations = _generated_step.members_per_chunk(*scheme), _generated_step.newton_operations(*scheme)
         for chunk in (64, 256, 512, 1024):
-            _ensemble.members_per_chunk = lambda *args, chunk=chunk: chunk
+            _ensemble.CHUNK = chunk
             jax.clear_caches()  # the chunk is read at trace time
             run = eqx.filter_jit(lambda m, s, h, order=order, ax=system_axes: vj.ensemble(m, s, h, steps, order=order, save_every=steps, system_axes=ax, method="batched", throw=False).g[:, -1])
             compile_s, t, _ = time_compiled(run, model, states, jnp.asarray(h), repeats=5)
-            rows.append(dict(scene=name, order=order, chunk=chunk, picked=picked, newton_operations=operations, members=n, steps=steps, seconds=t, rate=n * steps / t, compile_s=compile_s))
-            print(f"{name:30s} order {order} chunk {chunk:5d}: {n * steps / t / 1e6:6.2f} M member-steps/s (compile {compile_s:.1f} s; {operations} operations per member in the residual with its Jacobian: picked {picked})", flush=True)
+            rows.append(dict(scene=name, order=order, chunk=chunk, members=n, steps=steps, seconds=t, rate=n * steps / t, compile_s=compile_s))
+            print(f"{name:30s} order {order} chunk {chunk:5d}: {n * steps / t / 1e6:6.2f} M member-steps/s (compile {compile_s:.1f} s)", flush=True)
     write_config_json("ensemble_chunks", ARGS.fast_loops, rows=rows)
 
 

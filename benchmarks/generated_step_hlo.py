@@ -96,7 +96,6 @@ def step_body(comps):
 
 def main():
     rows = []
-    _ensemble.members_per_chunk = lambda *args: _ensemble.CHUNK  # light steps too (they pick 512)
     for name, scene, h, order in CASES:
         model = scene()
         states = perturbed_states(model.initial_state(), MEMBERS)

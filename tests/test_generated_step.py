@@ -12,6 +12,7 @@ import pytest
 import vi_jax as vj
 from vi_jax.engine._components import components, componentwise, stacked
 from vi_jax.lie import SO3, SOn, LinearAction
+from test_one_kernel import one_kernel_calls
 
 EPS = np.finfo(np.float64).eps
 N_MEMBERS = 5
@@ -321,8 +322,9 @@ def test_speculative_accelerator_step_differentiates_as_the_step_with_its_fallba
 
 def test_only_the_cpu_plan_hides_the_inputs_behind_a_barrier(monkeypatch):
     """Under a caller's trace the CPU plan puts the scene and h behind an optimisation barrier
-    (its fusion boundaries would fold away on constants); the accelerator plan has no boundaries
-    to keep, and there the barrier only cost constant folding: its program holds no barrier."""
+    (its fusion boundaries would fold away on constants) and its member loops in one kernel
+    region; the accelerator plan has no boundaries to keep, and there the barrier only cost
+    constant folding: its program holds neither."""
     from vi_jax.engine import _ensemble
 
     system, x0, tau, order, h = _scene("heavy top, Cayley, order 2")
@@ -330,39 +332,15 @@ def test_only_the_cpu_plan_hides_the_inputs_behind_a_barrier(monkeypatch):
     for platform, barrier in (("cpu", True), ("gpu", False)):
         monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None, p=platform: p)
         run = lambda s: vj.ensemble(system, s, h, 3, order=order, method="batched", throw=False).g  # noqa: E731
-        assert ("optimization_barrier" in str(jax.make_jaxpr(run)(states))) == barrier
+        jaxpr = str(jax.make_jaxpr(run)(states))
+        assert ("optimization_barrier" in jaxpr) == ("vi_jax_one_kernel" in jaxpr) == barrier
 
 
-def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
-    """The CPU plan's members per chunk follow the step's cost: the rigid body's residual with
-    its Jacobian is light (``LIGHT_CHUNK``), the order-2 vehicle's is not (``CHUNK``), and under
-    the loop option or with parameters per member every scene keeps ``CHUNK``. ``LIGHT_CHUNK`` + 9 members run as two equal
-    chunks (the second padded): the members on both sides of the seam and the last one equal
-    their own ``vj.simulate`` runs."""
-    from vi_jax.discrete import composition_coefficients
+def test_members_run_in_balanced_chunks(monkeypatch):
+    """On the CPU plan ``CHUNK`` + 9 members run as two equal chunks (the second padded): the
+    members on both sides of the seam and the last one equal their own ``vj.simulate`` runs."""
     from vi_jax.engine import _ensemble, _member_groups
-    from vi_jax.engine._generated_step import members_per_chunk
-    from vi_jax.engine._member_split import CHUNK, LIGHT_CHUNK
-    from vi_jax.lie import difference_map
-
-    def chunk_of(system, order, h):
-        states = _states(system.initial_state(), 2)
-        axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, states))
-        rule, _ = composition_coefficients(order)
-        return members_per_chunk(system, states, axes, jnp.asarray(h), difference_map("cayley"), rule, N_MEMBERS)
-
-    loop_option = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
-    monkeypatch.setenv("XLA_FLAGS", loop_option)  # read at trace time: whatever this process runs with
-    assert chunk_of(vj.models.RigidBody(), 2, 0.01) == CHUNK
-    monkeypatch.setenv("XLA_FLAGS", "")
-    assert chunk_of(vj.models.RigidBody(), 2, 0.01) == LIGHT_CHUNK
-    assert chunk_of(vj.models.UnderwaterVehicle(), 2, 0.01) == CHUNK
-    body = vj.models.RigidBody()
-    per_member = vj.vary(body, inertia=body.inertia * np.linspace(0.98, 1.02, N_MEMBERS)[:, None, None])
-    states = _states(body.initial_state(), 2)
-    axes = (jax.tree.map(lambda _: 0, per_member), jax.tree.map(lambda _: 0, states))
-    rule, _ = composition_coefficients(2)
-    assert members_per_chunk(per_member, states, axes, jnp.asarray(0.01), difference_map("cayley"), rule, N_MEMBERS) == CHUNK
+    from vi_jax.engine._member_split import CHUNK
 
     seen, sizes = [], []
     real = _ensemble.in_chunks
@@ -378,13 +356,13 @@ def test_light_steps_run_in_larger_balanced_chunks(monkeypatch):
 
     monkeypatch.setattr(_ensemble, "in_chunks", in_chunks)
     monkeypatch.setattr(_member_groups, "cores", lambda: 1)  # one program for all members, on any machine
-    jax.clear_caches()  # the chunk is chosen at trace time
+    jax.clear_caches()  # in_chunks is read at trace time
     system, x0, tau, order, h = _scene("rigid body, exp, order 1")
-    n, n_steps, save_every = LIGHT_CHUNK + 9, 40, 8
+    n, n_steps, save_every = CHUNK + 9, 40, 8
     states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.1 * np.random.default_rng(3).normal(size=(n, 3)))
     sol = vj.ensemble(system, states, h, n_steps, tau=tau, order=order, save_every=save_every, method="batched")
     half = -(-n // 16) * 8  # two chunks of whole SIMD lanes (8)
-    assert seen == [LIGHT_CHUNK] and sizes == [half]
+    assert seen == [CHUNK] and sizes == [half]
     for k in (0, half - 1, half, n - 1):
         ref = vj.simulate(system, jax.tree.map(lambda x: x[k], states), h, n_steps, tau=tau, order=order, save_every=save_every)
         for field in ("g", "xi", "M"):
@@ -452,6 +430,29 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
 
     assert block_of(1) == ([3, 4, 5], [3, 4, 5])
     assert block_of(2) is None
+
+
+@pytest.mark.parametrize("name", ["user System, order 4", "rigid body, exp, order 1"])
+def test_cpu_plan_loops_are_one_kernel(name, monkeypatch):
+    """The CPU plan's member loops reach XLA as one call it compiles into a single kernel
+    (``xla_cpu_small_call``), under a caller's ``jit`` and in the concrete call's program, for a
+    user ``System`` as for a model (at order 1: the plan does not depend on it; the accelerator
+    plan: the test above)."""
+    from vi_jax.engine import _ensemble, _member_groups
+    from vi_jax.lie import difference_map
+
+    monkeypatch.setattr(_member_groups, "cores", lambda: 1)
+    system, x0, tau, _, h = _scene(name)
+    order, states = 1, _states(x0, 4)
+    run = lambda s: vj.ensemble(system, s, h, 12, tau=tau, order=order, save_every=4, method="batched", throw=False).g  # noqa: E731
+    assert one_kernel_calls(jax.jit(run).lower(states).compile()) == 1
+    options = dict(n_members=N_MEMBERS, capacity=4, tau=difference_map(tau), order=order, rtol=1e-14, max_iterations=20,
+                   batched="generated", chunk=_ensemble.CHUNK)
+    dynamic, static = eqx.partition((system, states), eqx.is_array)
+    axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, states))
+    counts = (jnp.asarray(3, jnp.int32), jnp.asarray(4, jnp.int32))
+    concrete = _ensemble._run_loop.lower(dynamic, static, axes, jnp.asarray(h), *counts, **options).compile().compiled
+    assert one_kernel_calls(concrete) == 1
 
 
 def test_fusion_boundaries_survive_a_jit_that_closes_over_the_scene():

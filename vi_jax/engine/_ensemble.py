@@ -13,8 +13,8 @@ tests/test_generated_step.py):
   No path names a model (the vehicle's hand-written step, faster at order 1 on CPU with default
   XLA flags, is now the benchmarks' peer: ``benchmarks/explicit_block.py``). The plan
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
-  ``CHUNK`` one after another (cache-sized; ``LIGHT_CHUNK`` for a light generated step with
-  shared parameters and default XLA flags, :func:`~._generated_step.members_per_chunk`); on a GPU the whole batch is in every kernel (H100,
+  ``CHUNK`` one after another (cache-sized), each chunk's loops one kernel
+  (:func:`~vi_jax._one_kernel.one_kernel`); on a GPU the whole batch is in every kernel (H100,
   the heavy top at order 1: 2.47 G member-steps/s in float64 at 2²⁰ members; a chunked plan ran
   50× slower; README, ``benchmarks/ensemble_gpu.py``), with a speculative step under ``jit``
   (:func:`~._generated_step._speculative`: the fallback iterations rerun the whole step, for
@@ -64,7 +64,7 @@ from ._compile_options import ENSEMBLE_OPTIONS, cpu_options_jit
 from ._placement import target_platform
 from ._member_groups import MIN_GROUP, join_groups, member_group, on_cores
 from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, pad_members, take_member
-from ._generated_step import generated_loop, generated_scan, generated_solution, members_per_chunk
+from ._generated_step import generated_loop, generated_scan, generated_solution
 
 METHODS = ("auto", "batched", "vmap")
 
@@ -244,7 +244,6 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
         rule, gammas = composition_coefficients(order)
         if chunk is not None:
             dynamic, h = _opaque(dynamic, h)
-            chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
 
         def kernel(system, x0, n):
             return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint, chunk is not None)
@@ -328,7 +327,6 @@ def _run_loop(dynamic, static, axes, h, n_saved, save_every, *, n_members, capac
     if batched == "generated":
         if chunk is not None:
             dynamic, h = _opaque(dynamic, h)
-            chunk = members_per_chunk(*eqx.combine(dynamic, static), axes, h, tau, rule, n_members)
 
         def kernel(system, x0, n):
             return generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n, chunk is not None,

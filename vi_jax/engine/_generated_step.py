@@ -14,7 +14,9 @@ Jacobian costs most, the first step may be a chord step on factors carried from 
 (:func:`make_step`, :func:`~._member_newton.next_periods`). On the CPU plan a single-stage step
 (orders 1, 2) starts Newton from the extrapolation 2ξ_k − ξ_{k−1}, as ``vj.simulate`` does
 (:func:`_extrapolated`); the accelerator plan starts from ξ_k and runs the step speculatively
-(:func:`_speculative`). A failed step turns the member's state to NaN, as ``vj.simulate`` does.
+(:func:`_speculative`). On the CPU plan the member loops are one kernel
+(:func:`~vi_jax._one_kernel.one_kernel`: no dispatch per fused operation, whatever XLA's flags).
+A failed step turns the member's state to NaN, as ``vj.simulate`` does.
 """
 
 import equinox as eqx
@@ -29,9 +31,8 @@ from ._explicit_unknowns import dep_residual
 from ._simulate import assemble
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
-from .._xla_flags import loop_option_requested
+from .._one_kernel import one_kernel
 from ._member_loops import loop_member_nodes, scan_member_nodes
-from ._member_split import CHUNK, LIGHT_CHUNK
 from ._member_newton import MAX_PERIOD, lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
 
 
@@ -69,7 +70,6 @@ CARRY_COST = 4
 # Newton's first guess in single-stage steps: the extrapolation 2ξ_k − ξ_{k−1} (True) or ξ_k
 # (False, the benchmark's switch): _extrapolated.
 PREDICT = True
-LIGHT_OPERATIONS = 1000  # members_per_chunk
 # The accelerator plan (python benchmarks/gpu_step_profile.py, H200, 2^20 members): the
 # speculative step (_speculative; False: the fallback inside the step), two steps per iteration
 # of the step loop (ACCELERATOR_UNROLL: a step's result then needs no copy into the loop's
@@ -157,29 +157,6 @@ def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
     """The residual with its Jacobian, in residuals: operations per member in their jaxprs."""
     residual, with_jacobian = _residual_operations(static, params, tau, rule, n_members, layout, carry, h)
     return with_jacobian / residual
-
-
-def members_per_chunk(system, x0, axes, h, tau, rule, n_members):
-    """Members per chunk of the CPU plan: ``LIGHT_CHUNK`` where the residual with its Jacobian
-    has at most ``LIGHT_OPERATIONS`` operations per member (:func:`newton_operations`), the
-    scene's parameters are shared by the members and XLA:CPU dispatches a loop's fused
-    operations one by one (default flags), else ``CHUNK``.
-    ``python benchmarks/ensemble_chunks.py``: 512 members ran 1.19-1.53x faster than 64 for the
-    rigid body, the order-1 heavy top and vehicle (257-548 operations), a dispatch costing the
-    same for 512 members as for 64; the order-2 heavy top and vehicle (1558, 3973) ran 0.3-1.5x
-    at 256-1024, varying by up to 2.4x between runs (XLA:CPU splits their fusions over the
-    cores there); with the loop option 64 is within 3.4% of the best size for every scene; with
-    parameters per member (every coefficient a member array) 512 ran 0.61-0.67x (the rigid body,
-    the order-1 vehicle)."""
-    if loop_option_requested() or jax.tree.leaves(axes[0]):  # the loop option, or parameters per member
-        return CHUNK
-    return LIGHT_CHUNK if newton_operations(system, x0, axes, h, tau, rule, n_members) <= LIGHT_OPERATIONS else CHUNK
-
-
-def newton_operations(system, x0, axes, h, tau, rule, n_members):
-    """Operations per member in the jaxpr of the residual with its Jacobian."""
-    params, static, _, layout, carry0 = _start(system, x0, axes, jnp.asarray(h).dtype, n_members)
-    return _residual_operations(static, params, tau, rule, n_members, layout, carry0, h)[1]
 
 
 def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False):
@@ -367,7 +344,8 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
     step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
     unroll = 1 if boundaries else ACCELERATOR_UNROLL
-    saved, stats = scan_member_nodes(worst_step, carry0, _saved, n_saved, save_every, checkpoint, n_members, dtype, unroll)
+    loops = lambda carry0: scan_member_nodes(worst_step, carry0, _saved, n_saved, save_every, checkpoint, n_members, dtype, unroll)  # noqa: E731
+    saved, stats = (one_kernel(loops) if boundaries else loops)(carry0)
     return state0, _unpack(layout, carry0[0], saved, stats)
 
 
@@ -376,7 +354,8 @@ def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
     run length (``stop_at_failure``: :func:`loop_member_nodes`)."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
-    saved, stats = loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype, stop_at_failure)
+    loops = lambda carry0: loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype, stop_at_failure)  # noqa: E731
+    saved, stats = (one_kernel(loops) if boundaries else loops)(carry0)
     return state0, _unpack(layout, carry0[0], saved, stats)
 
 

@@ -53,7 +53,8 @@ def loop_member_nodes(worst_step, carry0, rows, n_saved, save_every, capacity, n
         carry, saved, stats = loop_carry
         carry = jax.lax.fori_loop(0, save_every, lambda _, c: worst_step(c, None)[0], (carry, no_stats(n_members, dtype)))
         row, row_stats = _pack(rows, *carry, dtype)
-        return carry[0], saved.at[k].set(row), stats.at[k].set(row_stats)
+        put = lambda buffer, x: jax.lax.dynamic_update_index_in_dim(buffer, x, k, 0)  # noqa: E731  (not a scatter: one_kernel)
+        return carry[0], put(saved, row), put(stats, row_stats)
 
     buffers = (jnp.broadcast_to(first, (capacity,) + first.shape), jnp.broadcast_to(none, (capacity,) + none.shape))
     succeeded = (lambda loop_carry, k: jnp.all(loop_carry[2][k, 2] == SUCCESS)) if stop_at_failure else None
