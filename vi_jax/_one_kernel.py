@@ -13,14 +13,18 @@ under differentiation (the JVP of the region is the JVP of its body), the region
 """
 
 import functools
+import inspect
 
 import jax
 
-try:  # JAX internals: without them (a JAX that moved them) a region is its body
+try:  # JAX internals: without them (a JAX that moved or changed them) a region is its body
     from jax._src import core, dispatch
     from jax._src.interpreters import ad, batching, mlir
     from jax._src.interpreters import partial_eval as pe
     from jax._src.lib.mlir import ir
+
+    if not {"dim_var_values", "const_lowering"} <= set(inspect.signature(mlir.call_lowering).parameters):
+        core = None  # pragma: no cover
 except ImportError:  # pragma: no cover
     core = None
 
