@@ -17,8 +17,9 @@ def pad_members(x, size):
     return xp.concatenate([x, xp.repeat(x[-1:], size - x.shape[0], axis=0)])
 
 
-# Members per inner loop of the batched kernel on CPU: 64 ran within 3.4% of the best of 64, 256,
-# 512 and 1024 for every scene with the loop kernels (python benchmarks/ensemble_chunks.py).
+# Members per inner loop of the batched kernel on CPU, its loops one kernel: of 64, 256, 512 and
+# 1024 members, 64 ran fastest for four of seven scenes and within 0.89x of the fastest for the
+# rest, default XLA (python benchmarks/ensemble_chunks.py).
 CHUNK = 64
 
 
