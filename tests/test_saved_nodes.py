@@ -15,6 +15,7 @@ import vi_jax as vj
 from vi_jax._saved_nodes import (
     SAVE_BLOCK,
     SEQUENTIAL_BYTES,
+    one_kernel_plan,
     checkpointed,
     each_step_rematerialised,
     scan_saved_nodes,
@@ -30,8 +31,7 @@ SCENES = (vj.models.UnderwaterVehicle, vj.models.HeavyTop, lambda: vj.models.Rig
 
 def _on_an_accelerator(monkeypatch):
     """Programs traced from now on target a GPU (as far as the loop plans ask)."""
-    for module in (_advance, _placement):
-        monkeypatch.setattr(module, "target_platform", lambda: "gpu")
+    monkeypatch.setattr(_placement, "target_platform", lambda: "gpu")
 
 
 def _state(scene, dtype):
@@ -54,8 +54,8 @@ def test_a_block_is_the_most_nodes_whose_largest_leaf_fits(scene, dtype):
 def test_the_block_follows_the_loop_plan(monkeypatch):
     """Blocks of steps only where every step is saved on the CPU with default loops; blocks of
     ``SAVE_BLOCK`` with a node every few steps (their steps run in an inner loop already), with
-    the loop option (one kernel per loop: a run saving every step is one scan instead) and on an
-    accelerator."""
+    the loop option or in a one-kernel region (one kernel per loop: a run saving every step is
+    one scan instead) and on an accelerator."""
     _, state = _state(vj.models.UnderwaterVehicle, jnp.float64)
     monkeypatch.setenv("XLA_FLAGS", "")
     assert _advance._node_block(state, 1) == step_block(state) == 4  # 4 rows of a 3×3 float64 g: 288 B
@@ -65,6 +65,9 @@ def test_the_block_follows_the_loop_plan(monkeypatch):
     monkeypatch.undo()
     monkeypatch.setenv("XLA_FLAGS", "")
     assert not _advance._initial_node_in_scan(1)
+    with one_kernel_plan():
+        assert _advance._node_block(state, 1) == SAVE_BLOCK
+        assert _advance._initial_node_in_scan(1) and not _advance._initial_node_in_scan(2)
     monkeypatch.setenv("XLA_FLAGS", FAST_LOOPS_FLAG)
     assert _advance._node_block(state, 1) == SAVE_BLOCK
     assert _advance._initial_node_in_scan(1)  # every node in one scan: no block asked for

@@ -44,6 +44,21 @@ KERNEL_OPS = frozenset(
     """.split()
 ) | {"func.call", "func.return"}
 CHLO_NOT_ELEMENTWISE = frozenset({"chlo.top_k", "chlo.ragged_dot"})
+# The jaxpr primitives that lower to KERNEL_OPS alone (and those holding jaxprs, checked in
+# turn): the trace-time twin of the lowering's check, for a caller that picks a loop plan by it.
+KERNEL_PRIMITIVES = frozenset(
+    """
+    abs acos acosh add add_any and argmax argmin asin asinh atan atan2 atanh bitcast_convert_type
+    broadcast_in_dim cbrt ceil checkpoint clamp closed_call clz concatenate cond
+    convert_element_type copy copy_p cos cosh custom_jvp_call custom_vjp_call custom_vjp_call_jaxpr
+    div dynamic_slice dynamic_update_slice eq erf erf_inv erfc exp exp2 expand_dims expm1 floor
+    gather ge gt imag integer_pow iota is_finite jit le log log1p logistic lt max min mul ne neg
+    nextafter not optimization_barrier or pad pjit population_count pow real reduce_and reduce_max
+    reduce_min reduce_or reduce_prod reduce_sum reduce_xor rem remat reshape rev round rsqrt scan
+    select_n shift_left shift_right_arithmetic shift_right_logical sign sin sinh slice split sqrt
+    square squeeze stack stop_gradient sub tan tanh transpose unstack while xor
+    """.split()
+)
 SMALL_CALL = {"xla_cpu_small_call": "true", "inlineable": "false"}
 
 
@@ -68,6 +83,14 @@ def _kernel_ops_only(module, name, seen):
         if foreign:
             return False
     return all(_kernel_ops_only(module, callee, seen) for callee in callees)
+
+
+def kernel_primitives_only(jaxpr) -> bool:
+    """Whether ``jaxpr`` (a ``Jaxpr``) and the jaxprs it holds use only :data:`KERNEL_PRIMITIVES`."""
+    return all(
+        eqn.primitive.name in KERNEL_PRIMITIVES and all(kernel_primitives_only(sub) for sub in core.jaxprs_in_params(eqn.params))
+        for eqn in jaxpr.eqns
+    )
 
 
 if core is not None:
@@ -104,17 +127,21 @@ if core is not None:
     mlir.register_lowering(one_kernel_p, _cpu_lowering, platform="cpu")
 
 
-def one_kernel(fn):
+def one_kernel(fn, fallback=None):
     """``fn`` (arrays in, a pytree of arrays out) as a region XLA:CPU compiles into one kernel
     where it can (module docstring); the same values, JVP and batching as ``fn``. A body with
-    side effects (callbacks) runs as it is."""
+    side effects (callbacks) runs as it is. With ``fallback`` (same signature and outputs), a
+    body whose jaxpr holds a primitive outside :data:`KERNEL_PRIMITIVES` is not a region:
+    ``fallback`` runs instead (e.g. ``fn`` planned for a thread-per-fusion program)."""
     if core is None:
-        return fn
+        return fn if fallback is None else fallback
 
     @functools.wraps(fn)
     def region(*args):
         flat, tree = jax.tree.flatten(args)
         closed, out_shape = jax.make_jaxpr(lambda *xs: fn(*jax.tree.unflatten(tree, xs)), return_shape=True)(*flat)
+        if fallback is not None and not kernel_primitives_only(closed.jaxpr):
+            return fallback(*args)
         if closed.effects:
             return fn(*args)
         jaxpr = pe.close_jaxpr(pe.convert_constvars_jaxpr(closed.jaxpr))  # closed-over tracers become inputs

@@ -1,6 +1,8 @@
 """A trajectory's saved nodes, for every scheme: scanned in blocks (under transformations), or
 written into a buffer of fixed capacity by a loop with traced counts (concrete runs)."""
 
+import contextlib
+import contextvars
 import math
 
 import jax
@@ -38,14 +40,53 @@ def scan_saved_nodes(node, state, length, checkpoint=False, block=SAVE_BLOCK, *,
     return state, jax.tree.map(lambda *xs: jnp.concatenate(xs), *pieces) if len(pieces) > 1 else pieces[0]
 
 
-def default_cpu_loops() -> bool:
-    """Whether the loops of a program traced now follow XLA:CPU's default loop plan (a thunk
-    per fused operation: :func:`step_block`), not the loop option's one kernel per loop or an
-    accelerator's."""
+_IN_ONE_KERNEL = contextvars.ContextVar("vi_jax_in_one_kernel", default=False)
+
+
+def one_kernel_loops() -> bool:
+    """Whether the loops of a program traced now are one kernel on XLA:CPU: with the loop option
+    (``vj.enable_fast_cpu_loops()``), or inside a region of :func:`in_one_kernel`."""
     from ._xla_flags import loop_option_requested
     from .engine._placement import target_platform
 
-    return target_platform() == "cpu" and not loop_option_requested()
+    return target_platform() == "cpu" and (loop_option_requested() or _IN_ONE_KERNEL.get())
+
+
+def default_cpu_loops() -> bool:
+    """Whether the loops of a program traced now follow XLA:CPU's default loop plan (a thunk
+    per fused operation: :func:`step_block`), not one kernel per loop (:func:`one_kernel_loops`)
+    or an accelerator's."""
+    from .engine._placement import target_platform
+
+    return target_platform() == "cpu" and not one_kernel_loops()
+
+
+@contextlib.contextmanager
+def one_kernel_plan():
+    token = _IN_ONE_KERNEL.set(True)
+    try:
+        yield
+    finally:
+        _IN_ONE_KERNEL.reset(token)
+
+
+def in_one_kernel(program):
+    """``program`` (arrays in and out) on XLA:CPU without the loop option: traced with the
+    one-kernel loop plan (:func:`one_kernel_loops`) as a region XLA:CPU compiles into one kernel
+    (:func:`~vi_jax._one_kernel.one_kernel`), or, where its operations are not all such a
+    kernel's (LAPACK, matrix products), as it is with the default plan. Elsewhere, and with the
+    loop option (which makes every loop one kernel), ``program`` itself. The region's JVP is its
+    body's: differentiate a program of the default plan instead (:func:`checkpointed`)."""
+    from ._one_kernel import one_kernel
+
+    if not default_cpu_loops():
+        return program
+
+    def planned(*args):
+        with one_kernel_plan():
+            return program(*args)
+
+    return one_kernel(planned, fallback=program)
 
 
 def each_step_rematerialised(step, carry, n, block):
@@ -70,12 +111,13 @@ def each_step_rematerialised(step, carry, n, block):
     return carry
 
 
-def checkpointed(program, step, carry):
+def checkpointed(program, step, carry, *, checkpoint=True, forward=lambda program: program):
     """``program(step, carry, checkpoint)`` — a loop program built from ``step(carry, None)`` —
     whose checkpoints only differentiation sees: a custom JVP whose rule is the JVP of
-    ``program(…, True)`` (reverse mode transposes it, rematerialising as that program says) and
+    ``program(…, checkpoint)`` (reverse mode transposes it, rematerialising as that program says) and
     whose value, in a program that does not differentiate, is ``program(…, False)``: one loop
-    where the checkpointed program has blocks. Against a forward pass that ran the blocks
+    where the checkpointed program has blocks. ``forward`` wraps that value's program (e.g.
+    :func:`in_one_kernel`: the rule's program keeps the default loop plan). Against a forward pass that ran the blocks
     (``python benchmarks/reverse_mode_plan.py`` on both versions, default XLA, under ``jit``,
     a node every 10 steps): the heavy top's splitting runs 0.45 → 0.40 µs a step (0.38 with
     ``checkpoint=False``); the vehicle's DEP traces and compiles in 4.32 → 3.49 s (3.42 without
@@ -87,8 +129,8 @@ def checkpointed(program, step, carry):
     def bound(consts):
         return lambda c, x=None: step(c, x, *consts)
 
-    run = jax.custom_jvp(lambda carry, consts: program(bound(consts), carry, False))
-    run.defjvp(lambda primals, tangents: jax.jvp(lambda c, k: program(bound(k), c, True), primals, tangents))
+    run = jax.custom_jvp(forward(lambda carry, consts: program(bound(consts), carry, False)))
+    run.defjvp(lambda primals, tangents: jax.jvp(lambda c, k: program(bound(k), c, checkpoint), primals, tangents))
     return run(carry, consts)
 
 

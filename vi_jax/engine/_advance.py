@@ -22,16 +22,16 @@ from .._saved_nodes import (
     checkpointed,
     default_cpu_loops,
     each_step_rematerialised,
+    in_one_kernel,
     loop_saved_nodes,
+    one_kernel_loops,
     rematerialised_steps,
     scan_saved_nodes,
     step_block,
 )
-from .._xla_flags import loop_option_requested
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
 from ._explicit_unknowns import explicit_unknowns
-from ._placement import target_platform
 
 
 def _sub_step(system, tau, rule, rtol, max_iter):
@@ -168,9 +168,8 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     def program(one_step, carry, checkpoint):
         return _scanned_nodes(one_step, carry, length, save_every, checkpoint)
 
-    if checkpoint:  # the program of checkpoint=False unless differentiated
-        return checkpointed(program, one_step, _with_previous(state))
-    return program(one_step, _with_previous(state), False)
+    # The program of checkpoint=False unless differentiated, one kernel where it can be.
+    return checkpointed(program, one_step, _with_previous(state), checkpoint=checkpoint, forward=in_one_kernel)
 
 
 def _scanned_nodes(one_step, carry, length, save_every, checkpoint):
@@ -222,7 +221,7 @@ def _initial_node_in_scan(save_every):
     where the whole loop is one kernel. Otherwise it copies the initial state in front of the
     nodes: XLA:CPU's default loop plan needs its blocks of steps (:func:`_node_block`), and a
     node of ``save_every`` > 1 steps would be computed once more for nothing."""
-    return save_every == 1 and target_platform() == "cpu" and loop_option_requested()
+    return save_every == 1 and one_kernel_loops()
 
 
 def _initial_node_first(node, zero):
@@ -269,19 +268,24 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     saved" on this version: 2.28× and 1.39×).
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
-    saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity + 1,) + x.shape), state)
-    stats = jax.tree.map(lambda s: jnp.broadcast_to(s, (capacity + 1,)), StepStats.zeros(state.z.dtype))
-    if isinstance(save_every, int) and save_every == 1:
-        return _every_step_in_blocks(one_step, state, saved, stats, n_nodes)
 
-    def node(k, carry):
-        carry, saved, stats = carry
-        carry, worst = _repeat_keeping_worst(lambda c, _: one_step(c), carry, save_every)
-        put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k + 1, 0)  # noqa: E731
-        return carry, jax.tree.map(put, saved, carry[0]), jax.tree.map(put, stats, worst)
+    def loops(state, n_nodes, save_every):
+        saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity + 1,) + x.shape), state)
+        stats = jax.tree.map(lambda s: jnp.broadcast_to(s, (capacity + 1,)), StepStats.zeros(state.z.dtype))
+        if save_every is None:
+            return _every_step_in_blocks(one_step, state, saved, stats, n_nodes)
 
-    (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes)
-    return state, saved, stats
+        def node(k, carry):
+            carry, saved, stats = carry
+            carry, worst = _repeat_keeping_worst(lambda c, _: one_step(c), carry, save_every)
+            put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k + 1, 0)  # noqa: E731
+            return carry, jax.tree.map(put, saved, carry[0]), jax.tree.map(put, stats, worst)
+
+        (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes)
+        return state, saved, stats
+
+    every_step = isinstance(save_every, int) and save_every == 1  # None: a program of its own
+    return in_one_kernel(loops)(state, n_nodes, None if every_step else save_every)
 
 
 def _every_step_in_blocks(one_step, state, saved, stats, n_nodes):

@@ -1,0 +1,92 @@
+"""``vj.simulate``'s loops as one kernel on XLA:CPU whatever its flags (``in_one_kernel``,
+``vi_jax/_saved_nodes.py``): the DEP loops of a scene whose step holds only elementwise
+operations reach XLA as one marked call, under a caller's ``jit`` and in the concrete call's
+program, planned as with the loop option; a scene with LAPACK or matrix products in its step
+keeps the default plan; differentiation runs the default plan's program (the region's
+JVP is never taken); the values are the default plan's to round-off."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_generated_step import _user_system
+from test_one_kernel import one_kernel_calls
+
+import vi_jax as vj
+from vi_jax.engine import _advance, _simulate
+
+EPS = np.finfo(np.float64).eps
+SCENES = {
+    "vehicle": lambda: (vj.models.UnderwaterVehicle(), vj.models.UnderwaterVehicle().initial_state()),
+    "user System": _user_system,
+    "heavy top": lambda: (vj.models.HeavyTop(), vj.models.HeavyTop().initial_state()),
+}
+
+
+def _scene(name):
+    return SCENES[name]()
+
+
+def _regions_in_jaxpr(fn, *args):
+    return str(jax.make_jaxpr(fn)(*args)).count("vi_jax_one_kernel")
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_the_loops_are_one_kernel_under_jit_and_in_the_concrete_program(name):
+    system, x0 = _scene(name)
+    run = lambda m, x: vj.simulate(m, x, 0.01, 12, order=2, throw=False).g  # noqa: E731
+    assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 1
+    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+    options = dict(capacity=16, tau=vj.lie.difference_map("cayley"), rule="left", gammas=(1.0,), rtol=1e-14, max_iter=20)
+    for save_every in (1, count(3)):  # every step saved (blocks of steps), a node every few steps
+        lowered = _simulate._simulate_loop.lower(system, x0, jnp.asarray(0.01), count(12), save_every, **options)
+        assert one_kernel_calls(lowered.compile().compiled) == 1
+
+
+def test_a_step_with_lapack_keeps_the_default_plan():
+    """SO(4): the step's exp map and solves call LAPACK, which XLA:CPU's one kernel cannot:
+    no region, the loops planned for the default thunk executor, and the run as before."""
+    system = vj.models.RigidBody(group=vj.lie.SOn(4))
+    x0 = system.initial_state()
+    run = lambda m, x: vj.simulate(m, x, 0.01, 12, throw=False).g  # noqa: E731
+    assert _regions_in_jaxpr(run, system, x0) == 0
+    assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 0
+    assert np.all(np.isfinite(jax.jit(run)(system, x0)))
+
+
+def test_differentiation_runs_the_default_plan():
+    """Forward and reverse mode (checkpointed or not) see no region: the custom JVP's rule is the
+    JVP of the default plan's program, whose blocks keep reverse mode's buffers small."""
+    system, x0 = _scene("vehicle")
+
+    def final_position(scale, checkpoint):
+        x = vj.State(x0.g, scale * x0.xi, x0.q, x0.qdot)
+        return jnp.sum(vj.simulate(system, x, 0.01, 20, checkpoint=checkpoint).q[-1])
+
+    for checkpoint in (True, False):
+        assert _regions_in_jaxpr(lambda s: final_position(s, checkpoint), 1.0) == 1
+        assert _regions_in_jaxpr(jax.grad(lambda s: final_position(s, checkpoint)), 1.0) == 0
+        assert _regions_in_jaxpr(lambda s: jax.jvp(lambda s: final_position(s, checkpoint), (s,), (1.0,)), 1.0) == 0
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_values_are_the_default_plans_to_round_off(name, monkeypatch):
+    """The same steps in one kernel and thread per fusion: XLA may contract or vectorise their
+    arithmetic differently, each step's rounding then differs by a few ulps, and over a bounded
+    motion those differences grow at most linearly: 8 ulps per step of each array's scale."""
+    system, x0 = _scene(name)
+    n = 100
+    run = lambda m, x: vj.simulate(m, x, 0.01, n, order=2, throw=False)  # noqa: E731
+    one = jax.jit(run)(system, x0)
+    monkeypatch.setattr(_advance, "in_one_kernel", lambda program: program)
+    jax.clear_caches()  # vj.simulate's traced programs are cached by their arguments
+    assert _regions_in_jaxpr(run, system, x0) == 0
+    default = jax.jit(run)(system, x0)
+    for field in ("g", "xi", "q", "M", "P", "energy"):
+        a, b = getattr(one, field), getattr(default, field)
+        if a is None:
+            continue
+        tol = 8 * n * EPS * float(jnp.max(jnp.abs(b)))
+        np.testing.assert_allclose(a, b, rtol=0, atol=tol, err_msg=field)
+    np.testing.assert_array_equal(one.newton_iterations, default.newton_iterations)
+    np.testing.assert_array_equal(one.result, default.result)
