@@ -1,9 +1,10 @@
 """``vj.simulate``'s loops as one kernel on XLA:CPU whatever its flags (``in_one_kernel``,
 ``vi_jax/_saved_nodes.py``): the DEP loops of a scene whose step holds only elementwise
 operations reach XLA as one marked call, under a caller's ``jit`` and in the concrete call's
-program, planned as with the loop option; a scene with LAPACK or matrix products in its step
-keeps the default plan; differentiation runs the default plan's program (the region's
-JVP is never taken); the values are the default plan's to round-off."""
+program, planned as with the loop option; a scene with LAPACK or matrix products in its step,
+or a loop program too large to compile quickly as one kernel, keeps the default plan;
+differentiation runs the default plan's program (the region's JVP is never taken); the values
+are the default plan's to round-off."""
 
 import jax
 import jax.numpy as jnp
@@ -34,7 +35,7 @@ def _regions_in_jaxpr(fn, *args):
 @pytest.mark.parametrize("name", list(SCENES))
 def test_the_loops_are_one_kernel_under_jit_and_in_the_concrete_program(name):
     system, x0 = _scene(name)
-    run = lambda m, x: vj.simulate(m, x, 0.01, 12, order=2, throw=False).g  # noqa: E731
+    run = lambda m, x: vj.simulate(m, x, 0.01, 12, throw=False).g  # noqa: E731
     assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 1
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
     options = dict(capacity=16, tau=vj.lie.difference_map("cayley"), rule="left", gammas=(1.0,), rtol=1e-14, max_iter=20)
@@ -43,12 +44,14 @@ def test_the_loops_are_one_kernel_under_jit_and_in_the_concrete_program(name):
         assert one_kernel_calls(lowered.compile().compiled) == 1
 
 
-def test_a_step_with_lapack_keeps_the_default_plan():
-    """SO(4): the step's exp map and solves call LAPACK, which XLA:CPU's one kernel cannot:
-    no region, the loops planned for the default thunk executor, and the run as before."""
-    system = vj.models.RigidBody(group=vj.lie.SOn(4))
+@pytest.mark.parametrize("scene, order", [("rigid body on SO(4)", 1), ("vehicle", 2)])
+def test_lapack_or_a_large_program_keeps_the_default_plan(scene, order):
+    """SO(4): the step's exp map and solves call LAPACK, which XLA:CPU's one kernel cannot; the
+    vehicle at order 2: its loop program holds more than ``ONE_KERNEL_EQUATIONS`` equations.
+    No region, the loops planned for the default thunk executor, and the run as before."""
+    system = vj.models.RigidBody(group=vj.lie.SOn(4)) if scene != "vehicle" else vj.models.UnderwaterVehicle()
     x0 = system.initial_state()
-    run = lambda m, x: vj.simulate(m, x, 0.01, 12, throw=False).g  # noqa: E731
+    run = lambda m, x: vj.simulate(m, x, 0.01, 12, order=order, throw=False).g  # noqa: E731
     assert _regions_in_jaxpr(run, system, x0) == 0
     assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 0
     assert np.all(np.isfinite(jax.jit(run)(system, x0)))
@@ -76,7 +79,7 @@ def test_values_are_the_default_plans_to_round_off(name, monkeypatch):
     motion those differences grow at most linearly: 8 ulps per step of each array's scale."""
     system, x0 = _scene(name)
     n = 100
-    run = lambda m, x: vj.simulate(m, x, 0.01, n, order=2, throw=False)  # noqa: E731
+    run = lambda m, x: vj.simulate(m, x, 0.01, n, throw=False)  # noqa: E731
     one = jax.jit(run)(system, x0)
     monkeypatch.setattr(_advance, "in_one_kernel", lambda program: program)
     jax.clear_caches()  # vj.simulate's traced programs are cached by their arguments

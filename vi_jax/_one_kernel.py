@@ -93,6 +93,11 @@ def kernel_primitives_only(jaxpr) -> bool:
     )
 
 
+def equation_count(jaxpr) -> int:
+    """Equations of ``jaxpr`` (a ``Jaxpr``) and of the jaxprs it holds."""
+    return sum(1 + sum(equation_count(sub) for sub in core.jaxprs_in_params(eqn.params)) for eqn in jaxpr.eqns)
+
+
 if core is not None:
     one_kernel_p = core.Primitive("vi_jax_one_kernel")
     one_kernel_p.multiple_results = True
@@ -127,12 +132,13 @@ if core is not None:
     mlir.register_lowering(one_kernel_p, _cpu_lowering, platform="cpu")
 
 
-def one_kernel(fn, fallback=None):
+def one_kernel(fn, fallback=None, max_equations=None):
     """``fn`` (arrays in, a pytree of arrays out) as a region XLA:CPU compiles into one kernel
     where it can (module docstring); the same values, JVP and batching as ``fn``. A body with
     side effects (callbacks) runs as it is. With ``fallback`` (same signature and outputs), a
     body whose jaxpr holds a primitive outside :data:`KERNEL_PRIMITIVES` is not a region:
-    ``fallback`` runs instead (e.g. ``fn`` planned for a thread-per-fusion program)."""
+    ``fallback`` runs instead (e.g. ``fn`` planned for a thread-per-fusion program), and so
+    does a body of more than ``max_equations`` equations (LLVM compiles a kernel in one piece)."""
     if core is None:
         return fn if fallback is None else fallback
 
@@ -141,6 +147,8 @@ def one_kernel(fn, fallback=None):
         flat, tree = jax.tree.flatten(args)
         closed, out_shape = jax.make_jaxpr(lambda *xs: fn(*jax.tree.unflatten(tree, xs)), return_shape=True)(*flat)
         if fallback is not None and not kernel_primitives_only(closed.jaxpr):
+            return fallback(*args)
+        if max_equations is not None and equation_count(closed.jaxpr) > max_equations:
             return fallback(*args)
         if closed.effects:
             return fn(*args)

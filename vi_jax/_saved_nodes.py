@@ -70,12 +70,22 @@ def one_kernel_plan():
         _IN_ONE_KERNEL.reset(token)
 
 
+# The largest loop program (jaxpr equations, nested ones counted) run as one kernel: LLVM compiles
+# a kernel in one piece, in a time growing faster than its size. The vehicle's concrete DEP
+# programs (jaxpr of the loops, default XLA, this version against the default plan's): order 1,
+# 3,632 equations, backend compile 1.84-2.14 -> 2.03-2.78 s; orders 2/4/6 (one program), 5,471
+# equations, 3.6 -> 8.0 s for steps 3-4x faster (paid back after ~400,000 steps); the heavy top
+# at order 2, 2,835 equations, first call +0.7-1.0 s for steps 5-6x faster.
+ONE_KERNEL_EQUATIONS = 4096
+
+
 def in_one_kernel(program):
     """``program`` (arrays in and out) on XLA:CPU without the loop option: traced with the
     one-kernel loop plan (:func:`one_kernel_loops`) as a region XLA:CPU compiles into one kernel
     (:func:`~vi_jax._one_kernel.one_kernel`), or, where its operations are not all such a
-    kernel's (LAPACK, matrix products), as it is with the default plan. Elsewhere, and with the
-    loop option (which makes every loop one kernel), ``program`` itself. The region's JVP is its
+    kernel's (LAPACK, matrix products) or that holds more than ``ONE_KERNEL_EQUATIONS``
+    equations, as it is with the default plan. Elsewhere, and with the loop option (which makes
+    every loop one kernel), ``program`` itself. The region's JVP is its
     body's: differentiate a program of the default plan instead (:func:`checkpointed`)."""
     from ._one_kernel import one_kernel
 
@@ -86,7 +96,7 @@ def in_one_kernel(program):
         with one_kernel_plan():
             return program(*args)
 
-    return one_kernel(planned, fallback=program)
+    return one_kernel(planned, fallback=program, max_equations=ONE_KERNEL_EQUATIONS)
 
 
 def each_step_rematerialised(step, carry, n, block):
