@@ -63,6 +63,7 @@ def default_cpu_loops() -> bool:
 
 @contextlib.contextmanager
 def one_kernel_plan():
+    """While active, :func:`one_kernel_loops` says yes on the CPU (the loops traced are a region's)."""
     token = _IN_ONE_KERNEL.set(True)
     try:
         yield
@@ -85,8 +86,8 @@ def in_one_kernel(program):
     (:func:`~vi_jax._one_kernel.one_kernel`), or, where its operations are not all such a
     kernel's (LAPACK, matrix products) or that holds more than ``ONE_KERNEL_EQUATIONS``
     equations, as it is with the default plan. Elsewhere, and with the loop option (which makes
-    every loop one kernel), ``program`` itself. The region's JVP is its
-    body's: differentiate a program of the default plan instead (:func:`checkpointed`)."""
+    every loop one kernel), ``program`` itself. The region's JVP is its body's: differentiate a
+    program of the default plan instead (:func:`checkpointed`)."""
     from ._one_kernel import one_kernel
 
     if not default_cpu_loops():
@@ -124,10 +125,11 @@ def each_step_rematerialised(step, carry, n, block):
 def checkpointed(program, step, carry, *, checkpoint=True, forward=lambda program: program):
     """``program(step, carry, checkpoint)`` — a loop program built from ``step(carry, None)`` —
     whose checkpoints only differentiation sees: a custom JVP whose rule is the JVP of
-    ``program(…, checkpoint)`` (reverse mode transposes it, rematerialising as that program says) and
-    whose value, in a program that does not differentiate, is ``program(…, False)``: one loop
-    where the checkpointed program has blocks. ``forward`` wraps that value's program (e.g.
-    :func:`in_one_kernel`: the rule's program keeps the default loop plan). Against a forward pass that ran the blocks
+    ``program(…, checkpoint)`` (reverse mode transposes it, rematerialising as that program
+    says) and whose value, in a program that does not differentiate, is ``program(…, False)``:
+    one loop where the checkpointed program has blocks. ``forward`` wraps that value's program
+    (e.g. :func:`in_one_kernel`: the rule's program keeps the default loop plan). Against a
+    forward pass that ran the blocks
     (``python benchmarks/reverse_mode_plan.py`` on both versions, default XLA, under ``jit``,
     a node every 10 steps): the heavy top's splitting runs 0.45 → 0.40 µs a step (0.38 with
     ``checkpoint=False``); the vehicle's DEP traces and compiles in 4.32 → 3.49 s (3.42 without
