@@ -85,17 +85,16 @@ def _kernel_ops_only(module, name, seen):
     return all(_kernel_ops_only(module, callee, seen) for callee in callees)
 
 
-def kernel_primitives_only(jaxpr) -> bool:
-    """Whether ``jaxpr`` (a ``Jaxpr``) and the jaxprs it holds use only :data:`KERNEL_PRIMITIVES`."""
-    return all(
-        eqn.primitive.name in KERNEL_PRIMITIVES and all(kernel_primitives_only(sub) for sub in core.jaxprs_in_params(eqn.params))
-        for eqn in jaxpr.eqns
-    )
-
-
-def equation_count(jaxpr) -> int:
-    """Equations of ``jaxpr`` (a ``Jaxpr``) and of the jaxprs it holds."""
-    return sum(1 + sum(equation_count(sub) for sub in core.jaxprs_in_params(eqn.params)) for eqn in jaxpr.eqns)
+def kernel_equations(jaxpr):
+    """The equations of ``jaxpr`` (a ``Jaxpr``) and of the jaxprs it holds, or None where one
+    uses a primitive outside :data:`KERNEL_PRIMITIVES`."""
+    count = 0
+    for eqn in jaxpr.eqns:
+        inner = [kernel_equations(sub) for sub in core.jaxprs_in_params(eqn.params)]
+        if eqn.primitive.name not in KERNEL_PRIMITIVES or None in inner:
+            return None
+        count += 1 + sum(inner)
+    return count
 
 
 if core is not None:
@@ -136,9 +135,9 @@ def one_kernel(fn, fallback=None, max_equations=None):
     """``fn`` (arrays in, a pytree of arrays out) as a region XLA:CPU compiles into one kernel
     where it can (module docstring); the same values, JVP and batching as ``fn``. A body with
     side effects (callbacks) runs as it is. With ``fallback`` (same signature and outputs), a
-    body whose jaxpr holds a primitive outside :data:`KERNEL_PRIMITIVES` is not a region:
-    ``fallback`` runs instead (e.g. ``fn`` planned for a thread-per-fusion program), and so
-    does a body of more than ``max_equations`` equations (LLVM compiles a kernel in one piece)."""
+    body whose jaxpr holds a primitive outside :data:`KERNEL_PRIMITIVES`, or more than
+    ``max_equations`` equations (LLVM compiles a kernel in one piece), is not a region:
+    ``fallback`` runs instead (e.g. ``fn`` planned for a thread-per-fusion program)."""
     if core is None:
         return fn if fallback is None else fallback
 
@@ -146,10 +145,10 @@ def one_kernel(fn, fallback=None, max_equations=None):
     def region(*args):
         flat, tree = jax.tree.flatten(args)
         closed, out_shape = jax.make_jaxpr(lambda *xs: fn(*jax.tree.unflatten(tree, xs)), return_shape=True)(*flat)
-        if fallback is not None and not kernel_primitives_only(closed.jaxpr):
-            return fallback(*args)
-        if max_equations is not None and equation_count(closed.jaxpr) > max_equations:
-            return fallback(*args)
+        if fallback is not None:
+            count = kernel_equations(closed.jaxpr)
+            if count is None or (max_equations is not None and count > max_equations):
+                return fallback(*args)
         if closed.effects:
             return fn(*args)
         jaxpr = pe.close_jaxpr(pe.convert_constvars_jaxpr(closed.jaxpr))  # closed-over tracers become inputs

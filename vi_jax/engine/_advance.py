@@ -218,9 +218,10 @@ def initial_first(state0, saved, stats):
 def _initial_node_in_scan(save_every):
     """Whether :func:`advance_scan` scans its nodes with the initial state as the first
     (:func:`_initial_node_first`), in one scan: every step saved on the CPU where the whole loop
-    is one kernel (:func:`~vi_jax._saved_nodes.one_kernel_loops`: the loop option, or a region). Otherwise it copies the initial state in front of the
-    nodes: XLA:CPU's default loop plan needs its blocks of steps (:func:`_node_block`), and a
-    node of ``save_every`` > 1 steps would be computed once more for nothing."""
+    is one kernel (:func:`~vi_jax._saved_nodes.one_kernel_loops`: the loop option, or a
+    region). Otherwise it copies the initial state in front of the nodes: XLA:CPU's default loop
+    plan needs its blocks of steps (:func:`_node_block`), and a node of ``save_every`` > 1 steps
+    would be computed once more for nothing."""
     return save_every == 1 and one_kernel_loops()
 
 
