@@ -125,6 +125,24 @@ def simulate_hand(params, R0, q0, omega0, v0, h, n_steps, tau="cayley", newton_i
     return out
 
 
+def node_diagnostics_hand(params, R, q, M, P):
+    """Per node (leading axis), from the saved (R, q, M, P): the continuous inverse Legendre map
+    ω = J⁻¹M, ν = (mI + M_A)⁻¹P (eq. 62's ℓ is quadratic in the velocities), the energy
+    E = ½νᵀ(mI + M_A)ν + ½ωᵀJω − (W − B) n·a + B r·a with n = Rᵀq and a = Rᵀe_z, the
+    Kelvin–Noether quantity of the isotropy of e_z, e_z·R(M − P×n) (spec: Ad*_{g⁻¹}μ = Rμ,
+    b◇x = b×x), and its scale |M| + |P||n|."""
+    m, MA, J, B, g, r = params
+    mass = m * jnp.eye(3) + MA
+    omega, nu = M @ inv3(J).T, P @ inv3(mass).T
+    n = jnp.einsum("kji,kj->ki", R, q)
+    a = R[:, 2, :]
+    dot = lambda x, y: jnp.sum(x * y, axis=-1)  # noqa: E731
+    energy = 0.5 * dot(nu, nu @ mass.T) + 0.5 * dot(omega, omega @ J.T) - (m * g - B) * dot(n, a) + B * (a @ r)
+    kelvin_noether = dot(R[:, 2, :], M - jnp.cross(P, n))
+    scale = jnp.linalg.norm(M, axis=-1) + jnp.linalg.norm(P, axis=-1) * jnp.linalg.norm(n, axis=-1)
+    return omega, nu, energy, kelvin_noether, scale
+
+
 def vehicle_params(model):
     return (model.mass, model.added_mass, model.inertia, model.buoyancy, model.gravity, model.buoyancy_offset)
 

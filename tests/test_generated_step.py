@@ -494,7 +494,7 @@ def _node_problem(name):
 def test_node_velocities_equal_the_per_node_inverse_legendre_map(name):
     """``vj.simulate``'s node velocities, solved for all nodes at once on component arrays, equal
     the per-node Newton of ``inverse_legendre`` (to Newton's tolerance), for kinetic energies
-    quadratic in the velocities (one Newton step, refined) and not (Newton iterates)."""
+    quadratic in the velocities (one Newton step) and not (Newton iterates)."""
     from vi_jax.discrete import inverse_legendre
     from vi_jax.engine._node_velocities import node_velocities
 
@@ -512,7 +512,7 @@ def test_node_velocities_equal_the_per_node_inverse_legendre_map(name):
 def test_affine_residuals_are_solved_without_a_loop(name, loops):
     """The member Newton sees from the Jacobian's components that a residual is affine (no entry
     is a member array: the user System's momenta are linear in (ξ, ν)) and solves it with one
-    step and a refinement, compiling no fallback loop; a nonlinear one keeps its loop."""
+    step, compiling no fallback loop; a nonlinear one keeps its loop."""
     from vi_jax.engine._node_velocities import node_velocities
 
     system, states = _node_problem(name)

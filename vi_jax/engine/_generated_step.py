@@ -33,7 +33,7 @@ from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
 from .._one_kernel import one_kernel
 from ._member_loops import loop_member_nodes, scan_member_nodes
-from ._member_newton import MAX_PERIOD, lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
+from ._member_newton import MAX_PERIOD, fusion_boundary, lu, newton_members, next_periods, on_member_tuples, value_and_jacobian_of
 
 
 def _pieces(static, tau, rule):
@@ -97,23 +97,6 @@ def _nan_where(failed, carry):
     return jax.tree.map(lambda x: jnp.where(failed, jnp.nan, x), carry)
 
 
-def _boundary(tree, always):
-    """The member arrays of ``tree`` (arrays of shape (members,), outside object arrays) through a
-    conditional whose other branch (NaN) is never taken: XLA:CPU copies cheap subexpressions into
-    every loop fusion that uses them (a Newton iterate into each component of the next residual)
-    and drops optimisation barriers before fusing, but keeps conditionals. Marking the iterates
-    and residuals so made the vehicle's step 2.8× faster (order 1, 64 members per chunk) and
-    compile in 11 s instead of 25 (order 2; ``python benchmarks/ensemble_chunks.py``); since the
-    momentum is marked shared the iterates need no mark (12 fewer thunks per step on SO(3),
-    ``python benchmarks/generated_step_hlo.py``)."""
-    leaves, treedef = jax.tree.flatten(tree)
-    slots = [i for i, x in enumerate(leaves) if isinstance(x, jax.Array) and jnp.ndim(x) == 1]
-    kept = jax.lax.cond(always, lambda xs: xs, lambda xs: [jnp.full_like(x, jnp.nan) for x in xs], [leaves[i] for i in slots])
-    for i, x in zip(slots, kept):
-        leaves[i] = x
-    return jax.tree.unflatten(treedef, leaves)
-
-
 def _equations_of(static, params, tau, rule, n_members, layout, boundaries):
     """``equations(carry, h)``: the step's configuration pieces, its boundary, and its residual
     and Jacobian as functions of the unknowns' member arrays; and the update."""
@@ -126,7 +109,7 @@ def _equations_of(static, params, tau, rule, n_members, layout, boundaries):
         n, a = body(params, g, q)
         target = M if P is None else np.concatenate([M, P])
         always = h == h  # True unless h is NaN (and then every value is)
-        boundary = (lambda tree: _boundary(tree, always)) if boundaries else (lambda tree: tree)
+        boundary = (lambda tree: fusion_boundary(tree, always)) if boundaries else (lambda tree: tree)
         fn, fn_jac = on_member_tuples(
             lambda z: residual(params, hc, z, n, a, target, boundary=boundary),
             lambda z: value_and_jacobian(params, hc, z, n, a, target, boundary=boundary),
@@ -161,7 +144,7 @@ def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
 
 def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False):
     """``step((carry, extra), h) -> ((carry, extra), (iterations, residual, result))`` on flat
-    member arrays; ``boundaries``: the fusion boundaries of :func:`_boundary` at the residuals,
+    member arrays; ``boundaries``: the fusion boundaries of :func:`~._member_newton.fusion_boundary` at the residuals,
     the Jacobian and the values the step marks as shared (the CPU plan; a GPU fuses without
     them and would pay a conditional per boundary). ``carry_factors``: ``extra`` holds each
     member's LU factors, refresh period and its ceiling, and the step count (:func:`next_periods`); else ``()``

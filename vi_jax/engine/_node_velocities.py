@@ -4,7 +4,9 @@
 The nodes take the members' place in the generated step's machinery: the residual and its
 forward-mode Jacobian run on component arrays of shape (nodes,) and Newton on their tuples
 (:func:`newton_members`, implicit-function gradients), so the solve is elementwise over the
-nodes instead of a ``vmap`` of a per-node Newton with small matrices.
+nodes instead of a ``vmap`` of a per-node Newton with small matrices. The residuals pass a
+fusion boundary (:func:`fusion_boundary`): each is computed once, not again inside every
+component of the velocities that reads it.
 """
 
 import equinox as eqx
@@ -14,7 +16,7 @@ import numpy as np
 
 from ..discrete._dep import _join, _split
 from ._components import componentwise, components, from_member_arrays, member_arrays, stacked
-from ._member_newton import newton_members, on_member_tuples, value_and_jacobian_of
+from ._member_newton import fusion_boundary, newton_members, on_member_tuples, value_and_jacobian_of
 
 
 def node_velocities(system, states, rtol, max_iter):
@@ -44,8 +46,10 @@ def node_velocities(system, states, rtol, max_iter):
     target = per_node(states.M) if states.P is None else np.concatenate([per_node(states.M), per_node(states.P)])
     shape = states.z.shape[1:]
 
+    always = states.M[0, 0] == states.M[0, 0]  # True unless the initial momentum is NaN (then every node is)
     fn, fn_jac = on_member_tuples(
-        lambda z: residual_c(params, z, n, a, target), lambda z: jacobian_c(params, z, n, a, target), shape, n_nodes, dtype
+        lambda z: residual_c(params, z, n, a, target), lambda z: jacobian_c(params, z, n, a, target), shape, n_nodes, dtype,
+        lambda tree: fusion_boundary(tree, always),
     )
     z0 = member_arrays(per_node(states.z), n_nodes, dtype)
     z, _ = newton_members(fn, z0, rtol=rtol, max_iterations=max_iter, value_and_jacobian=fn_jac)
