@@ -15,8 +15,8 @@ The row "blocks of 128 nodes" is the every-node program as it was before ``step_
 peer that justifies the blocks of 4 nodes of the default loop plan; with the loop option both
 rows are the same program). The row "initial state copied in front" is the every-node program
 with the initial state concatenated in front of the scanned nodes (the peer of
-``_advance._initial_node_in_scan``, the loop option's one scan whose first node is the initial
-state; with default XLA both rows are the same program). The row "small products as dots" is the every-node program with
+``_advance._initial_node_in_scan``: where the loops are one kernel, with the loop option or as
+a region with default XLA, the nodes are one scan whose first node is the initial state). The row "small products as dots" is the every-node program with
 the products of the Lagrangian left as ``dot_general``s (the peer of ``fused_products``,
 ``vi_jax/lie/_small.py``). The row "Jacobian eliminated at every solve" is the every-node
 program with Newton's solves by ``dense_solve`` instead of factors computed once (the peer of
@@ -67,13 +67,20 @@ def _with_traced_save_every(system, x0, h, n_saved, save_every, **options):
     return first_rows(sol, n_saved + 1)
 
 
+@contextlib.contextmanager
+def _under(patches):
+    """Every one of ``patches`` (``mock.patch`` objects) active."""
+    with contextlib.ExitStack() as stack:
+        for patch in patches:
+            stack.enter_context(patch)
+        yield
+
+
 def _compiled(fn, *args, patches=()):
     """``fn`` jitted and compiled for ``args`` under ``patches`` (the trace sees them; the
     compiled program keeps them): (compile + first run seconds, a call, its output)."""
     start = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        for patch in patches:
-            stack.enter_context(patch)
+    with _under(patches):
         compiled = jax.jit(fn).lower(*args).compile()
     out = jax.block_until_ready(compiled(*args))
     return time.perf_counter() - start, lambda: compiled(*args), out
@@ -84,9 +91,7 @@ def _concrete(fn, *args, patches=()):
     time: (first call seconds, a call, its output)."""
 
     def call():
-        with contextlib.ExitStack() as stack:
-            for patch in patches:
-                stack.enter_context(patch)
+        with _under(patches):
             return fn(*args)
 
     start = time.perf_counter()
@@ -118,16 +123,15 @@ def main():
             lambda m, x, order=order: vj.simulate(m, x, h, n, order=order, throw=False), model, x0
         )
     variants = {
-        f"blocks of {SAVE_BLOCK} nodes": mock.patch.object(_advance, "_node_block", lambda state, save_every: SAVE_BLOCK),
-        "initial state copied in front": mock.patch.object(_advance, "_initial_node_in_scan", lambda save_every: False),
-        "small products as dots": mock.patch.object(_small, "_is_small_dot", lambda eqn: False),
+        f"blocks of {SAVE_BLOCK} nodes": (mock.patch.object(_advance, "_node_block", lambda state, save_every: SAVE_BLOCK),),
+        "initial state copied in front": (mock.patch.object(_advance, "_initial_node_in_scan", lambda save_every: False),),
+        "small products as dots": (mock.patch.object(_small, "_is_small_dot", lambda eqn: False),),
         "Jacobian eliminated at every solve": (mock.patch.object(_newton, "lu_factor", lambda A: A),
                                                mock.patch.object(_newton, "lu_solve", _newton.dense_solve)),
-        "Newton on every unknown": mock.patch.object(_advance, "explicit_unknowns", lambda *args: None),
+        "Newton on every unknown": (mock.patch.object(_advance, "explicit_unknowns", lambda *args: None),),
     }
     for name, patches in variants.items():
         jax.clear_caches()  # vj.simulate's traced program is cached by its arguments: trace it anew
-        patches = patches if isinstance(patches, tuple) else (patches,)
         rows[f"{every_row}, {name}"] = _compiled(every, model, x0, patches=patches)
     rows["vj.simulate order=1, final node only"] = _compiled(lambda m, x: vj.simulate(m, x, h, n, save_every=n, throw=False), model, x0)
     # The call users make: concrete inputs, one program per saved-node capacity (traced step counts).

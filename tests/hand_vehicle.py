@@ -138,7 +138,7 @@ def node_diagnostics_hand(params, R, q, M, P):
     a = R[:, 2, :]
     dot = lambda x, y: jnp.sum(x * y, axis=-1)  # noqa: E731
     energy = 0.5 * dot(nu, nu @ mass.T) + 0.5 * dot(omega, omega @ J.T) - (m * g - B) * dot(n, a) + B * (a @ r)
-    kelvin_noether = dot(R[:, 2, :], M - jnp.cross(P, n))
+    kelvin_noether = dot(a, M - jnp.cross(P, n))  # e_z·Rμ = (Rᵀe_z)·μ
     scale = jnp.linalg.norm(M, axis=-1) + jnp.linalg.norm(P, axis=-1) * jnp.linalg.norm(n, axis=-1)
     return omega, nu, energy, kelvin_noether, scale
 

@@ -357,7 +357,7 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
 
     def _finish(i, z, r, scale, carry=()):
         """z with per-member (iterations, relative residual, result) and what ``factors`` asks
-        to carry, r the residual before the last correction."""
+        to carry, r the residual before the last correction (at z for an affine fn)."""
         rel = norm(r) / jnp.where(scale > 0, scale, 1.0)
         ok = finite(z) & finite(r)
         result = jnp.where(~ok, NONFINITE, jnp.where(rel <= rtol, SUCCESS, MAX_ITERATIONS))
