@@ -1,9 +1,10 @@
 """Compile time and step cost of ``vj.simulate``'s first concrete calls as users get them (its
 programs compiled with XLA:CPU's elemental emitters: ``vi_jax/engine/_compile_options.py``) and
 with XLA's default fusion emitters forced by ``XLA_FLAGS`` (``--xla_cpu_use_fusion_emitters=true``,
-which the user's flags may choose; the peer).
+which the user's flags may choose; the peer), and with Newton's iterations unrolled in the
+concrete call's loops (the peer of ``vi_jax.solvers._newton.rolled_iterations``).
 
-    python benchmarks/compile_time.py        # ≈ 2 min; writes benchmarks/results/compile_time.json
+    python benchmarks/compile_time.py        # ≈ 3 min; writes benchmarks/results/compile_time.json
 
 Each configuration runs in its own process (XLA reads its flags once). Per scene: building the
 scene and its initial state (``setup_s``, the first time in the process: eager operations compile
@@ -20,7 +21,11 @@ import sys
 import time
 from pathlib import Path
 
-CONFIGS = {"vi_jax's programs (elemental emitters)": "", "fusion emitters (XLA's default)": "--xla_cpu_use_fusion_emitters=true"}
+CONFIGS = {
+    "vi_jax's programs (elemental emitters)": ("", False),
+    "fusion emitters (XLA's default)": ("--xla_cpu_use_fusion_emitters=true", False),
+    "Newton's iterations unrolled": ("", True),
+}
 CASES = [("UnderwaterVehicle", 1), ("UnderwaterVehicle", 2), ("HeavyTop", 2)]
 N_STEPS = 20_000
 
@@ -33,6 +38,12 @@ def child():
 
     import vi_jax as vj
 
+    if "--unrolled" in sys.argv:  # the peer of rolled_iterations: the concrete loops' Newton unrolled
+        import contextlib
+
+        from vi_jax.engine import _advance
+
+        _advance.rolled_iterations = contextlib.nullcontext
     compile_s = []
     monitoring.register_event_duration_secs_listener(
         lambda event, duration, **_: compile_s.append(duration) if event.endswith("backend_compile_duration") else None
@@ -58,9 +69,10 @@ def child():
 
 def main():
     results = {}
-    for name, flag in CONFIGS.items():
+    for name, (flag, unrolled) in CONFIGS.items():
         env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip())
-        run = subprocess.run([sys.executable, __file__, "--child"], env=env, capture_output=True, text=True)
+        command = [sys.executable, __file__, "--child"] + (["--unrolled"] if unrolled else [])
+        run = subprocess.run(command, env=env, capture_output=True, text=True)
         if run.returncode and "Unknown flag" in run.stderr:  # newer XLA (jax 0.11.2) dropped the option
             print(f"{name}: not available in this XLA ({flag})")
             continue

@@ -80,24 +80,28 @@ def one_kernel_plan():
 ONE_KERNEL_EQUATIONS = 4096
 
 
-def in_one_kernel(program):
+def in_one_kernel(program, default_plan=None):
     """``program`` (arrays in and out) on XLA:CPU without the loop option: traced with the
     one-kernel loop plan (:func:`one_kernel_loops`) as a region XLA:CPU compiles into one kernel
     (:func:`~vi_jax._one_kernel.one_kernel`), or, where its operations are not all such a
     kernel's (LAPACK, matrix products) or that holds more than ``ONE_KERNEL_EQUATIONS``
-    equations, as it is with the default plan. Elsewhere, and with the loop option (which makes
-    every loop one kernel), ``program`` itself. The region's JVP is its body's: differentiate a
-    program of the default plan instead (:func:`checkpointed`)."""
+    equations, ``default_plan`` (the same computation for loops that are not one kernel;
+    ``program`` itself if None) with the default plan. With the loop option (which makes every
+    loop one kernel) ``program``; on an accelerator ``default_plan``. The region's JVP is its
+    body's: differentiate a program of the default plan instead (:func:`checkpointed`)."""
     from ._one_kernel import one_kernel
 
-    if not default_cpu_loops():
+    default_plan = program if default_plan is None else default_plan
+    if one_kernel_loops():
         return program
+    if not default_cpu_loops():
+        return default_plan
 
     def planned(*args):
         with one_kernel_plan():
             return program(*args)
 
-    return one_kernel(planned, fallback=program, max_equations=ONE_KERNEL_EQUATIONS)
+    return one_kernel(planned, fallback=default_plan, max_equations=ONE_KERNEL_EQUATIONS)
 
 
 def each_step_rematerialised(step, carry, n, block):

@@ -31,6 +31,7 @@ from .._saved_nodes import (
 )
 from ..discrete import StepStats, dep_step
 from ..solvers import SUCCESS
+from ..solvers._newton import rolled_iterations
 from ._explicit_unknowns import explicit_unknowns
 
 
@@ -267,6 +268,15 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     default XLA, timing the hand code and the concrete call of ``python benchmarks/step_cost.py``
     alternately in processes of both versions; that benchmark's row "concrete call, every node
     saved" on this version: 2.28× and 1.39×).
+
+    Where the loops are one kernel, Newton's iterations are rolled
+    (:func:`~vi_jax.solvers._newton.rolled_iterations`): each evaluation compiled once. Against
+    them unrolled, in alternate processes of both versions (``python benchmarks/compile_time.py``,
+    default XLA; its row "Newton's iterations unrolled" is the peer): the vehicle's first call
+    (order 1) 2.62–3.45 → 2.39–3.55 s, 0.7–1.05 → 1.05–1.47 µs a step, the price of the
+    compile saved (≈ 0.1–0.4 µs a step: paid back after a few million steps); order 2, whose
+    unrolled loops are too large for one kernel, 5.2–5.9 → 4.5–5.4 s and 10.4–12.4 → 3.5–4.1 µs
+    a step; the heavy top at order 2 3.9–4.7 → 1.8–2.0 s, 1.25–1.35 → 1.40–1.71 µs a step.
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
 
@@ -285,8 +295,12 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
         (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes)
         return state, saved, stats
 
+    def rolled_loops(*args):
+        with rolled_iterations():
+            return loops(*args)
+
     every_step = isinstance(save_every, int) and save_every == 1  # None: a program of its own
-    return in_one_kernel(loops)(state, n_nodes, None if every_step else save_every)
+    return in_one_kernel(rolled_loops, default_plan=loops)(state, n_nodes, None if every_step else save_every)
 
 
 def _every_step_in_blocks(one_step, state, saved, stats, n_nodes):

@@ -1,0 +1,84 @@
+"""Newton's rolled iterations (``vi_jax.solvers._newton.rolled_iterations``, what a concrete
+``vj.simulate``'s one-kernel loops trace): one loop over the evaluations takes the same iterates
+as the unrolled first steps and full iterations, holds each evaluation once, and lets the
+vehicle's order-2 loops be one kernel."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_one_kernel import one_kernel_calls
+
+import vi_jax as vj
+from vi_jax.solvers import _newton
+
+B = jnp.array([0.4, -1.3, 2.2])
+
+
+def _residual(z):
+    """A coupled nonlinear system with a unique root: z + 0.9 sin(Az) = b (the sine's Jacobian
+    has norm < 1 against the identity), and the size of its terms as the scale."""
+    A = jnp.array([[1.0, 0.5, 0.0], [0.5, 1.0, 0.5], [0.0, 0.5, 1.0]])
+    s = 0.9 * jnp.sin(A @ z)
+    return z + s - B, jnp.max(jnp.abs(z)) + jnp.max(jnp.abs(s)) + jnp.max(jnp.abs(B))
+
+
+def _solve(z0, max_iterations, rolled):
+    def run(z0):
+        if not rolled:
+            return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=max_iterations)
+        with _newton.rolled_iterations():
+            return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=max_iterations)
+
+    return jax.jit(run)(z0)
+
+
+@pytest.mark.parametrize("max_iterations", [0, 1, 2, 3, 4, 6, 20])
+@pytest.mark.parametrize("start", ["near", "far", "nan"])
+def test_rolled_iterations_take_the_same_iterates(max_iterations, start):
+    """Near the root the chord steps converge; far from it the full iterations run (and with few
+    allowed, fail); a NaN guess stays non-finite. Same iterations, result and residual, and the
+    same root to a few ulps (the same operations, compiled in another program)."""
+    root = _solve(jnp.zeros(3), 20, rolled=False)[0]
+    z0 = {"near": root + 1e-3, "far": jnp.array([3.0, -4.0, 5.0]), "nan": jnp.full(3, jnp.nan)}[start]
+    z, stats = _solve(z0, max_iterations, rolled=False)
+    z_rolled, stats_rolled = _solve(z0, max_iterations, rolled=True)
+    if start == "far" and max_iterations == 20:
+        assert int(stats.iterations) > 1 + vj.solvers.CHORD_ITERATIONS  # the full iterations ran
+    assert int(stats_rolled.iterations) == int(stats.iterations)
+    assert int(stats_rolled.result) == int(stats.result)
+    np.testing.assert_allclose(stats_rolled.residual, stats.residual, rtol=1e-6, atol=1e-15)
+    np.testing.assert_allclose(z_rolled, z, rtol=8 * np.finfo(np.float64).eps, atol=0)
+
+
+def test_rolled_iterations_hold_each_evaluation_once():
+    """One sine a residual evaluation: unrolled, the Jacobian's point, three chord points and the
+    full iterations' Jacobian hold five; rolled, the residual and its Jacobian one each."""
+
+    def sines(rolled):
+        def run(z0):
+            if not rolled:
+                return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=20)
+            with _newton.rolled_iterations():
+                return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=20)
+
+        return str(jax.make_jaxpr(run)(jnp.zeros(3))).count(" sin ")
+
+    assert sines(rolled=False) == 5
+    assert sines(rolled=True) == 2
+
+
+def test_the_vehicles_order_2_concrete_loops_are_one_kernel():
+    """Unrolled, the vehicle's order-2 loop program holds more equations than one kernel takes
+    (it keeps the default plan under ``jit``: tests/test_simulate_one_kernel.py); the concrete
+    call's, rolled, is one kernel."""
+    from vi_jax.discrete import composition_coefficients
+    from vi_jax.engine import _simulate
+    from vi_jax.engine._advance import traced_composition
+
+    system = vj.models.UnderwaterVehicle()
+    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+    rule, gammas = composition_coefficients(2)
+    options = dict(capacity=16, tau=vj.lie.difference_map("cayley"), rule=rule, gammas=traced_composition(gammas), rtol=1e-14, max_iter=20)
+    lowered = _simulate._simulate_loop.lower(system, system.initial_state(), jnp.asarray(0.01), count(12), 1, **options)
+    assert one_kernel_calls(lowered.compile().compiled) == 1
