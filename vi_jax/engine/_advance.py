@@ -272,9 +272,11 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     Where the loops are one kernel, Newton's iterations are rolled
     (:func:`~vi_jax.solvers._newton.rolled_iterations`): each evaluation compiled once. Against
     them unrolled, in alternate processes of both versions (``python benchmarks/compile_time.py``,
-    default XLA; its row "Newton's iterations unrolled" is the peer): the vehicle's first call
-    (order 1) 2.62–3.45 → 2.39–3.55 s, 0.7–1.05 → 1.05–1.47 µs a step, the price of the
-    compile saved (≈ 0.1–0.4 µs a step: paid back after a few million steps); order 2, whose
+    default XLA; its row "Newton's iterations unrolled" is the peer): the vehicle's backend
+    compile (order 1) 1.92–2.01 → 1.37–1.64 s, its first call 3.15–3.45 → 2.39–2.71 s in three
+    pairs (2.62 / 2.85 → 3.55 / 2.88 s in two runs of the benchmark on a noisy day), its steps
+    0.7–1.05 → 1.05–1.47 µs, the price of the compile saved (a conditional per evaluation;
+    paid back after a few million steps); order 2, whose
     unrolled loops are too large for one kernel, 5.2–5.9 → 4.5–5.4 s and 10.4–12.4 → 3.5–4.1 µs
     a step; the heavy top at order 2 3.9–4.7 → 1.8–2.0 s, 1.25–1.35 → 1.40–1.71 µs a step.
     """
