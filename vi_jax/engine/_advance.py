@@ -270,15 +270,13 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     saved" on this version: 2.28× and 1.39×).
 
     Where the loops are one kernel, Newton's iterations are rolled
-    (:func:`~vi_jax.solvers._newton.rolled_iterations`): each evaluation compiled once. Against
-    them unrolled, in alternate processes of both versions (``python benchmarks/compile_time.py``,
-    default XLA; its row "Newton's iterations unrolled" is the peer): the vehicle's backend
-    compile (order 1) 1.92–2.01 → 1.37–1.64 s, its first call 3.15–3.45 → 2.39–2.71 s in three
-    pairs (2.62 / 2.85 → 3.55 / 2.88 s in two runs of the benchmark on a noisy day), its steps
-    0.7–1.05 → 1.05–1.47 µs, the price of the compile saved (a conditional per evaluation;
-    paid back after a few million steps); order 2, whose
-    unrolled loops are too large for one kernel, 5.2–5.9 → 4.5–5.4 s and 10.4–12.4 → 3.5–4.1 µs
-    a step; the heavy top at order 2 3.9–4.7 → 1.8–2.0 s, 1.25–1.35 → 1.40–1.71 µs a step.
+    (:func:`~vi_jax.solvers._newton.rolled_iterations`): the residual and its Jacobian compiled
+    once each. Against the version before, in alternate processes on a slow day (``python
+    benchmarks/compile_time.py``, default XLA; its row "Newton's iterations unrolled" is the peer
+    in one process): the vehicle's first call (order 1, 20,000 steps) 4.04–4.26 → 3.15–3.48 s
+    (the peer 3.20–4.08 s), its steps 0.86–1.04 → 0.86–1.13 µs; at order 2, whose unrolled
+    loops are too large for one kernel, 5.3–7.5 → 6.2–6.3 s and 14.1–16.8 → 5.6–5.7 µs a step;
+    the heavy top at order 2 4.5–4.7 → 2.1–2.3 s, 2.0–2.1 → 1.9–2.0 µs a step.
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
 

@@ -118,15 +118,18 @@ _ROLLED = False
 
 @contextlib.contextmanager
 def rolled_iterations():
-    """While active, :func:`newton_root` traces each of its evaluations once: one ``while`` loop
-    over the evaluations, a conditional choosing the residual alone (chord steps) or with its
-    Jacobian (the first point and the full iterations). Unrolled, the first Newton step and the
-    chord steps hold the residual three times and the full iterations the Jacobian a second
-    time. The same iterates and statistics. For a loop that is one kernel (a
-    :func:`~vi_jax._saved_nodes.in_one_kernel` region): the vehicle's concrete ``vj.simulate``
-    program (order 1) holds 2,401 equations instead of 3,726, and order 2's 2,937 instead of
-    5,490 (within one kernel's limit: one kernel instead of XLA:CPU's default loop plan).
-    Timings: :func:`vi_jax.engine._advance.advance_loop`."""
+    """While active, :func:`newton_root` traces the residual and its Jacobian once each: one
+    ``while`` loop over the evaluations, each of the residual and, where Newton needs new factors
+    (the first point, the full iterations), of the Jacobian's factors in a conditional whose
+    other branch keeps them. Unrolled, the first Newton step and the chord steps hold the
+    residual three times and the full iterations the Jacobian a second time. The same iterates
+    and statistics; the first point's residual is evaluated twice (alone and with the Jacobian):
+    a conditional choosing between the two evaluations made the vehicle's concrete steps 1.33×
+    the unrolled ones, against 1.10× so (minima of 11 alternate timings, in a throwaway A/B
+    when this was written). For loops that are one kernel (an :func:`~vi_jax._saved_nodes.in_one_kernel`
+    region): the vehicle's concrete ``vj.simulate`` program (order 1) holds 2,398 jaxpr equations
+    instead of 3,726, and order 2's 2,934 instead of 5,490 (one kernel instead of XLA:CPU's default
+    loop plan). Timings: :func:`vi_jax.engine._advance.advance_loop`."""
     global _ROLLED
     previous, _ROLLED = _ROLLED, True
     try:
@@ -264,26 +267,26 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
             return (i + 1, z, *value_and_factors(z))
 
         def rolled(z_init, n_chord):
-            """:func:`rolled_iterations`' loop: evaluation e at z_e, the Jacobian too where e = 0
-            or e ≥ 2 + n_chord (full iterations); evaluation 0 follows a zero update of z_init."""
-
-            def evaluate(e, z, factors):
-                chord = lambda z, factors: (*fn(z), factors)  # noqa: E731
-                return jax.lax.cond((e == 0) | (e >= 2 + n_chord), lambda z, _: value_and_factors(z), chord, z, factors)
+            """:func:`rolled_iterations`' loop over the evaluations; the first (k = 0) follows a
+            zero update of ``z_init`` (r = 0, the identity's factors)."""
 
             def going(state):
-                k, _, r, scale, _ = state  # k evaluations so far: k − 1 Newton iterations
+                k, _, r, scale, _ = state  # k evaluations so far: k − 1 iterations
                 full = (k - 1 < max_iterations) & not_converged(r, scale) & jnp.all(jnp.isfinite(r))
                 return (k < 2 + n_chord) | full
 
-            def next_evaluation(state):
+            def evaluation(state):
                 k, z, r, _, factors = state
                 z = z - lu_solve(factors, r)
-                return (k + 1, z, *evaluate(k, z, factors))
+                r, scale = fn(z)
+                refresh = lambda z, _: value_and_factors(z)[2]  # noqa: E731
+                factors = jax.lax.cond((k == 0) | (k >= 2 + n_chord), refresh, lambda _, kept: kept, z, factors)
+                return (k + 1, z, r, scale, factors)
 
             n, dtype = z_init.shape[0], z_init.dtype
-            start = (jnp.asarray(0, jnp.int32), z_init, jnp.zeros_like(z_init), jnp.ones((), dtype), lu_factor(jnp.eye(n, dtype=dtype)))
-            k, z, r, scale, factors = jax.lax.while_loop(going, next_evaluation, start)
+            identity = lu_factor(jnp.eye(n, dtype=dtype))
+            start = (jnp.asarray(0, jnp.int32), z_init, jnp.zeros_like(z_init), jnp.ones((), dtype), identity)
+            k, z, r, scale, factors = jax.lax.while_loop(going, evaluation, start)
             return k - 1, z, r, scale, factors
 
         n_chord = max(min(chord_iterations, max_iterations - 1), 0)
