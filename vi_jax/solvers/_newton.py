@@ -126,10 +126,11 @@ def rolled_iterations():
     and statistics; the first point's residual is evaluated twice (alone and with the Jacobian):
     a conditional choosing between the two evaluations made the vehicle's concrete steps 1.33×
     the unrolled ones, against 1.10× so (minima of 11 alternate timings, in a throwaway A/B
-    when this was written). For loops that are one kernel (an :func:`~vi_jax._saved_nodes.in_one_kernel`
-    region): the vehicle's concrete ``vj.simulate`` program (order 1) holds 2,398 jaxpr equations
-    instead of 3,726, and order 2's 2,934 instead of 5,490 (one kernel instead of XLA:CPU's default
-    loop plan). Timings: :func:`vi_jax.engine._advance.advance_loop`."""
+    when this was written). For loops that are one kernel (an
+    :func:`~vi_jax._saved_nodes.in_one_kernel` region): the vehicle's concrete ``vj.simulate``
+    program (order 1) holds 2,398 jaxpr equations instead of 3,726, and order 2's 2,934 instead
+    of 5,490 (one kernel instead of XLA:CPU's default loop plan). Timings:
+    :func:`vi_jax.engine._advance.advance_loop`."""
     global _ROLLED
     previous, _ROLLED = _ROLLED, True
     try:
@@ -202,7 +203,8 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
     ``max_iterations`` in all). A final correction with the Jacobian at hand follows the check:
     stopping at the tolerance itself would leave an O(rtol) bias per step that accumulates in the
     conserved quantities. A ``while_loop`` iteration inside ``lax.scan`` costs more on CPU than
-    the arithmetic of a small step, so the common path has none (benchmarks/step_cost.py).
+    the arithmetic of a small step, so the common path has none (benchmarks/step_cost.py), but
+    where the loops are one kernel (:func:`rolled_iterations`).
     With ``max_iterations`` ≤ 1 + ``chord_iterations`` the program holds no full iterations.
 
     ``explicit``: (rows, columns) of unknowns with explicit equations — rows of the residual
