@@ -3,6 +3,8 @@
 as the unrolled first steps and full iterations, holds each evaluation once, and lets the
 vehicle's order-2 loops be one kernel."""
 
+import contextlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,7 +12,7 @@ import pytest
 from test_one_kernel import one_kernel_calls
 
 import vi_jax as vj
-from vi_jax.solvers import _newton
+from vi_jax.solvers import _newton as _newton_module
 
 B = jnp.array([0.4, -1.3, 2.2])
 
@@ -23,14 +25,18 @@ def _residual(z):
     return z + s - B, jnp.max(jnp.abs(z)) + jnp.max(jnp.abs(s)) + jnp.max(jnp.abs(B))
 
 
-def _solve(z0, max_iterations, rolled):
-    def run(z0):
-        if not rolled:
-            return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=max_iterations)
-        with _newton.rolled_iterations():
-            return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=max_iterations)
+def _newton(max_iterations, rolled):
+    """Newton on :func:`_residual` from a guess, traced rolled or unrolled."""
 
-    return jax.jit(run)(z0)
+    def run(z0):
+        with _newton_module.rolled_iterations() if rolled else contextlib.nullcontext():
+            return _newton_module.newton_root(_residual, z0, rtol=1e-14, max_iterations=max_iterations)
+
+    return run
+
+
+def _solve(z0, max_iterations, rolled):
+    return jax.jit(_newton(max_iterations, rolled))(z0)
 
 
 @pytest.mark.parametrize("max_iterations", [0, 1, 2, 3, 4, 6, 20])
@@ -56,13 +62,7 @@ def test_rolled_iterations_hold_each_evaluation_once():
     full iterations' Jacobian hold five; rolled, the residual and its Jacobian one each."""
 
     def sines(rolled):
-        def run(z0):
-            if not rolled:
-                return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=20)
-            with _newton.rolled_iterations():
-                return _newton.newton_root(_residual, z0, rtol=1e-14, max_iterations=20)
-
-        return str(jax.make_jaxpr(run)(jnp.zeros(3))).count(" sin ")
+        return str(jax.make_jaxpr(_newton(20, rolled))(jnp.zeros(3))).count(" sin ")
 
     assert sines(rolled=False) == 5
     assert sines(rolled=True) == 2

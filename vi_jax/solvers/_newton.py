@@ -273,9 +273,8 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
             zero update of ``z_init`` (r = 0, the identity's factors)."""
 
             def going(state):
-                k, _, r, scale, _ = state  # k evaluations so far: k − 1 iterations
-                full = (k - 1 < max_iterations) & not_converged(r, scale) & jnp.all(jnp.isfinite(r))
-                return (k < 2 + n_chord) | full
+                k, *rest = state  # k evaluations so far: k − 1 iterations
+                return (k < 2 + n_chord) | cond((k - 1, *rest))
 
             def evaluation(state):
                 k, z, r, _, factors = state
