@@ -149,6 +149,31 @@ def test_building_a_scene_compiles_few_programs():
     assert all(n <= 16 for n in counts.values()), counts
 
 
+# In a fresh process: the programs a first concrete vj.simulate compiles, by name.
+_FIRST_CALL_PROGRAMS = """
+import logging, jax
+jax.config.update("jax_enable_x64", True)
+import vi_jax as vj
+model = vj.models.UnderwaterVehicle()
+x0 = jax.block_until_ready(model.initial_state())
+handler = logging.Handler()
+handler.emit = lambda record: print(record.getMessage().split()[1]) if record.getMessage().startswith("Compiling ") else None
+logging.getLogger("jax").addHandler(handler)
+logging.getLogger("jax").setLevel(logging.DEBUG)
+with jax.log_compiles():
+    vj.simulate(model, x0, 0.01, 100)
+"""
+
+
+def test_a_first_call_compiles_no_conversion():
+    """The step size and the step counts reach the run's program without an eager conversion
+    (each a program to compile, 15–20 ms: ``jnp.asarray`` of a number compiles one)."""
+    out = subprocess.run([sys.executable, "-c", _FIRST_CALL_PROGRAMS], capture_output=True, text=True, check=True).stdout
+    programs = out.split()
+    assert "jit(_simulate_loop)" in programs, programs
+    assert not [p for p in programs if "convert_element_type" in p or "stage" in p], programs
+
+
 def test_newton_traces_the_residual_once():
     """The Jacobian, the chord steps, the full iterations and the implicit-function gradient
     replay the residual's jaxpr (Python model code runs once per step traced)."""

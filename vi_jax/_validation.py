@@ -29,6 +29,16 @@ def is_eager(x) -> bool:
     return is_concrete(x) and outside_transformations()
 
 
+def converted(value, dtype):
+    """``jnp.asarray(value, dtype)``, a concrete ``value`` (a step size, a step count) converted
+    on the host: JAX converts by a program compiled on the first conversion of each kind (for a
+    first ``vj.simulate``, two of 15–20 ms each). A traced or committed array is converted as
+    ``jnp.asarray`` does (its placement kept)."""
+    if isinstance(value, jax.core.Tracer) or getattr(value, "committed", False):
+        return jnp.asarray(value, dtype)
+    return jax.device_put(np.asarray(value, dtype))
+
+
 def is_batched(x) -> bool:
     """Whether a leaf of ``x`` is being batched by ``jax.vmap`` (a batch tracer)."""
     return any(isinstance(leaf, jax.core.Tracer) and hasattr(leaf, "batch_dim") for leaf in jax.tree_util.tree_leaves(x))
@@ -58,7 +68,9 @@ def _short(value) -> str:
 @_eager
 def as_array(name, value, shape=None):
     try:
-        arr = value if isinstance(value, jax.Array) else jnp.asarray(value)
+        # Numbers by a transfer: jnp.asarray compiles a program for them (same dtype, weak type).
+        on_device = isinstance(value, (int, float, np.ndarray, np.generic))
+        arr = value if isinstance(value, jax.Array) else jax.device_put(value) if on_device else jnp.asarray(value)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{name}: expected an array, got {value!r}") from err
     if not jnp.issubdtype(arr.dtype, jnp.number) or jnp.issubdtype(arr.dtype, jnp.complexfloating):

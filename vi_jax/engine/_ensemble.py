@@ -187,7 +187,7 @@ def ensemble(
     dtype = jnp.result_type(x0.g, x0.xi, h)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
-    h = jnp.asarray(h, dtype)
+    h = val.converted(h, dtype)
     options = dict(
         n_saved=n_steps // save_every, save_every=save_every, tau=tau_map, order=order,
         rtol=_default_rtol(dtype) if rtol is None else float(rtol),
@@ -205,7 +205,7 @@ def ensemble(
     def run(dynamic, n_members):
         if looped:
             n_saved = options["n_saved"]
-            counts = tuple(jnp.asarray(n, jnp.int32) for n in (n_saved, save_every))
+            counts = tuple(val.converted(n, jnp.int32) for n in (n_saved, save_every))
             loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk")}
             loop_options["capacity"] = capacity = ensemble_capacity(n_saved)
             if mesh is None:

@@ -116,7 +116,7 @@ def simulate(
     dtype = jnp.result_type(x0.g, x0.xi, h)
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = jnp.result_type(float)
-    h = jnp.asarray(h, dtype)
+    h = val.converted(h, dtype)
     cast = lambda x: None if x is None else jnp.asarray(x, dtype)  # noqa: E731
     x0 = State(cast(x0.g), cast(x0.xi), cast(x0.q), cast(x0.qdot))
     n_saved = n_steps // save_every
@@ -226,7 +226,7 @@ def _simulate_looped(system, x0, h, n_saved, save_every, **options):
     program without them on the vehicle (orders 1, 2), 0.90–1.06× on the heavy top and the rigid
     body (``python benchmarks/newton_plan.py [--fast-loops]``), so it is run alone; ``vj.ensemble``'s
     generated step still runs the one without them first (:func:`~._ensemble.optimistically`)."""
-    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
+    count = lambda n: val.converted(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
     every = 1 if save_every == 1 else count(save_every)  # every step saved: a program of its own
     sol = _simulate_loop(system, x0, h, count(n_saved), every, capacity=saved_capacity(n_saved), **options)
     return first_rows(sol, n_saved + 1)
@@ -240,7 +240,7 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
     n_chunks = min(n_saved, 100)
     sizes = [n_saved // n_chunks + (i < n_saved % n_chunks) for i in range(n_chunks)]
     capacity = saved_capacity(sizes[0])
-    count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+    count = lambda n: val.converted(n, jnp.int32)  # noqa: E731
     saved_parts, stats_parts = [], []
     with tqdm(total=n_saved * save_every, unit="step", desc="simulate") as bar:
         for size in sizes:

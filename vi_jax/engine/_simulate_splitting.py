@@ -5,6 +5,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .. import _validation as val
 from .._system import State
 from .._saved_nodes import first_rows, saved_capacity
 from ..discrete._splitting import advance, advance_loop, initial_phase, nodes, resolved_parts
@@ -99,7 +100,7 @@ def simulate_splitting(
     if progress:
         return _with_progress(parts, x0, h, n_saved, save_every, method, arrangement)
     if looped:
-        count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+        count = lambda n: val.converted(n, jnp.int32)  # noqa: E731
         sol = _run_loop(parts, x0, h, count(n_saved), count(save_every), saved_capacity(n_saved), method, arrangement)
         return first_rows(sol, n_saved + 1)
     return _run(parts, x0, h, n_saved, save_every, method, arrangement, bool(checkpoint))

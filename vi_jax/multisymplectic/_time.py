@@ -160,7 +160,7 @@ def time_march(
             sol = _assemble_jit(engine, rows, save_every)
         elif val.is_eager((system, args)):  # traced counts: one program for every length
             n_rows = n_steps // save_every + 1
-            count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
+            count = lambda n: val.converted(n, jnp.int32)  # noqa: E731
             sol = _time_march_loop(system, *args, count(n_rows), count(save_every), capacity=saved_capacity(n_rows), **options)
             sol = eqx.tree_at(lambda m: m.s, first_rows(sol, n_rows), sol.s)
         else:
