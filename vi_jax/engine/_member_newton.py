@@ -147,16 +147,16 @@ def _is_zero(entry):
 
 
 def explicit_block(jac, varies=None):
-    """(rows, columns) of a Jacobian, known at trace time, where those rows are affine in the
-    unknowns with coefficients that do not depend on them, and zero outside those columns, as
-    many as the rows; None if no row is so. ``varies[i][j]``: whether entry (i, j) depends on
-    the unknowns (default: whether it is a member array, i.e. not shared by all members)."""
-    k = len(jac)
+    """(rows, columns) of a Jacobian (rows of entries: square, or some rows of one), known at
+    trace time, where those rows are affine in the unknowns with coefficients that do not depend
+    on them, and zero outside those columns, as many as the rows; None if no row is so.
+    ``varies[i][j]``: whether entry (i, j) depends on the unknowns (default: whether it is a
+    member array, i.e. not shared by all members)."""
     nonzero = [[not _is_zero(e) for e in row] for row in jac]
     if varies is None:
         varies = [[jnp.ndim(e) != 0 for e in row] for row in jac]
-    rows = [i for i in range(k) if not any(varies[i][j] and nonzero[i][j] for j in range(k))]
-    cols = sorted({j for i in rows for j in range(k) if nonzero[i][j]})
+    rows = [i for i, (v, nz) in enumerate(zip(varies, nonzero)) if not any(a and b for a, b in zip(v, nz))]
+    cols = sorted({j for i in rows for j, b in enumerate(nonzero[i]) if b})
     return (rows, cols) if rows and len(cols) == len(rows) else None
 
 
