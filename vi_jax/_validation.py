@@ -39,6 +39,12 @@ def converted(value, dtype):
     return jax.device_put(np.asarray(value, dtype))
 
 
+def step_count(n):
+    """A step or node count as a concrete int32 array: a loop program takes it as data, so
+    another count compiles nothing (:func:`converted`)."""
+    return converted(n, jnp.int32)
+
+
 def is_batched(x) -> bool:
     """Whether a leaf of ``x`` is being batched by ``jax.vmap`` (a batch tracer)."""
     return any(isinstance(leaf, jax.core.Tracer) and hasattr(leaf, "batch_dim") for leaf in jax.tree_util.tree_leaves(x))

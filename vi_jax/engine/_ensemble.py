@@ -205,7 +205,7 @@ def ensemble(
     def run(dynamic, n_members):
         if looped:
             n_saved = options["n_saved"]
-            counts = tuple(val.converted(n, jnp.int32) for n in (n_saved, save_every))
+            counts = tuple(val.step_count(n) for n in (n_saved, save_every))
             loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk")}
             loop_options["capacity"] = capacity = ensemble_capacity(n_saved)
             if mesh is None:

@@ -226,9 +226,8 @@ def _simulate_looped(system, x0, h, n_saved, save_every, **options):
     program without them on the vehicle (orders 1, 2), 0.90–1.06× on the heavy top and the rigid
     body (``python benchmarks/newton_plan.py [--fast-loops]``), so it is run alone; ``vj.ensemble``'s
     generated step still runs the one without them first (:func:`~._ensemble.optimistically`)."""
-    count = lambda n: val.converted(n, jnp.int32)  # noqa: E731  (traced: no recompilation)
-    every = 1 if save_every == 1 else count(save_every)  # every step saved: a program of its own
-    sol = _simulate_loop(system, x0, h, count(n_saved), every, capacity=saved_capacity(n_saved), **options)
+    every = 1 if save_every == 1 else val.step_count(save_every)  # every step saved: a program of its own
+    sol = _simulate_loop(system, x0, h, val.step_count(n_saved), every, capacity=saved_capacity(n_saved), **options)
     return first_rows(sol, n_saved + 1)
 
 
@@ -240,12 +239,11 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
     n_chunks = min(n_saved, 100)
     sizes = [n_saved // n_chunks + (i < n_saved % n_chunks) for i in range(n_chunks)]
     capacity = saved_capacity(sizes[0])
-    count = lambda n: val.converted(n, jnp.int32)  # noqa: E731
     saved_parts, stats_parts = [], []
     with tqdm(total=n_saved * save_every, unit="step", desc="simulate") as bar:
         for size in sizes:
             state, saved, stats = _advance_loop_jit(
-                system, tau, rule, gammas, h, state, count(size), count(save_every), capacity, rtol, max_iter
+                system, tau, rule, gammas, h, state, val.step_count(size), val.step_count(save_every), capacity, rtol, max_iter
             )
             saved_parts.append(jax.tree.map(lambda x: x[1 : size + 1], saved))  # row 0: the piece's start
             stats_parts.append(jax.tree.map(lambda x: x[1 : size + 1], stats))
@@ -254,7 +252,7 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
     total = saved_capacity(n_saved)
     cat = lambda *xs: jnp.concatenate(xs + (jnp.broadcast_to(xs[-1][-1:], (total - n_saved,) + xs[-1].shape[1:]),))  # noqa: E731
     saved, stats = jax.tree.map(cat, *saved_parts), jax.tree.map(cat, *stats_parts)
-    return first_rows(_assemble_jit(system, state0, saved, stats, h, count(save_every), rtol, max_iter), n_saved + 1)
+    return first_rows(_assemble_jit(system, state0, saved, stats, h, val.step_count(save_every), rtol, max_iter), n_saved + 1)
 
 
 def _check_failure(sol: Solution, save_every: int) -> Solution:

@@ -100,7 +100,6 @@ def simulate_splitting(
     if progress:
         return _with_progress(parts, x0, h, n_saved, save_every, method, arrangement)
     if looped:
-        count = lambda n: val.converted(n, jnp.int32)  # noqa: E731
-        sol = _run_loop(parts, x0, h, count(n_saved), count(save_every), saved_capacity(n_saved), method, arrangement)
+        sol = _run_loop(parts, x0, h, val.step_count(n_saved), val.step_count(save_every), saved_capacity(n_saved), method, arrangement)
         return first_rows(sol, n_saved + 1)
     return _run(parts, x0, h, n_saved, save_every, method, arrangement, bool(checkpoint))

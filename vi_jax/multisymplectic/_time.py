@@ -160,8 +160,7 @@ def time_march(
             sol = _assemble_jit(engine, rows, save_every)
         elif val.is_eager((system, args)):  # traced counts: one program for every length
             n_rows = n_steps // save_every + 1
-            count = lambda n: val.converted(n, jnp.int32)  # noqa: E731
-            sol = _time_march_loop(system, *args, count(n_rows), count(save_every), capacity=saved_capacity(n_rows), **options)
+            sol = _time_march_loop(system, *args, val.step_count(n_rows), val.step_count(save_every), capacity=saved_capacity(n_rows), **options)
             sol = eqx.tree_at(lambda m: m.s, first_rows(sol, n_rows), sol.s)
         else:
             sol = _time_march_jit(system, *args, n_steps=n_steps, save_every=save_every, **options)
