@@ -42,9 +42,9 @@ def explicit_unknowns(system, tau, rule, state, h):
 
     Only scenes with additional dynamics are analysed, their P rows alone: the trace costs the
     Jacobian of those rows on components, 0.14–0.17 s on the vehicle in a fresh process against
-    0.31–0.34 s for the whole residual's (five alternate processes of both versions); a scene
-    without them (the heavy top on SO(4): 0.3–0.5 s, SO(6): 1.5–3 s for the whole residual) is
-    not analysed. The answer depends on the scene's structure only (its parameters are unknown
+    0.31–0.34 s for the whole residual's (five alternate processes of both versions, a throwaway
+    script timing ``explicit_unknowns``); a scene without them (the heavy top on SO(4):
+    0.3–0.5 s, SO(6): 1.5–3 s for the whole residual) is not analysed. The answer depends on the scene's structure only (its parameters are unknown
     values here), so it is kept for the next program of the same structure."""
     if not system.has_additional:
         return None
@@ -68,7 +68,7 @@ def _analyse(system, tau, rule, state, h):
 
     def p_rows_jacobian(params, h, z, n, a, target):
         # The P rows' own function: the whole residual's rows sliced still traces the M rows'
-        # terms and the scale (0.30–0.45 s against 0.17–0.28 s, alternate fresh processes).
+        # terms and the scale (0.30–0.45 s against 0.17–0.28 s: the same throwaway script).
         def p_rows(z):
             (_, p), _, _ = discrete_momenta(eqx.combine(params, static), tau, rule, h, z, n, a)
             return p - target[first:]
