@@ -1,10 +1,13 @@
 """Compile time and step cost of ``vj.simulate``'s first concrete calls as users get them (its
 programs compiled with XLA:CPU's elemental emitters: ``vi_jax/engine/_compile_options.py``) and
 with XLA's default fusion emitters forced by ``XLA_FLAGS`` (``--xla_cpu_use_fusion_emitters=true``,
-which the user's flags may choose; the peer), and with Newton's iterations unrolled in the
-concrete call's loops (the peer of ``vi_jax.solvers._newton.rolled_iterations``).
+which the user's flags may choose; the peer), with Newton's iterations unrolled in the
+concrete call's loops (the peer of ``vi_jax.solvers._newton.rolled_iterations``), and with the
+concrete call's loop and node diagnostics in one program, compiled after the whole trace (the
+peer of ``vi_jax/engine/_overlapped_compiles.py``, which compiles the loop's program while the
+diagnostics' program is traced and compiled).
 
-    python benchmarks/compile_time.py        # ≈ 3 min; writes benchmarks/results/compile_time.json
+    python benchmarks/compile_time.py        # ≈ 4 min; writes benchmarks/results/compile_time.json
 
 Each configuration runs in its own process (XLA reads its flags once). Per scene: building the
 scene and its initial state (``setup_s``, the first time in the process: eager operations compile
@@ -22,9 +25,10 @@ import time
 from pathlib import Path
 
 CONFIGS = {
-    "vi_jax's programs (elemental emitters)": ("", False),
-    "fusion emitters (XLA's default)": ("--xla_cpu_use_fusion_emitters=true", False),
-    "Newton's iterations unrolled": ("", True),
+    "vi_jax's programs (elemental emitters)": ("", None),
+    "fusion emitters (XLA's default)": ("--xla_cpu_use_fusion_emitters=true", None),
+    "Newton's iterations unrolled": ("", "--unrolled"),
+    "loop and node diagnostics one program": ("", "--one-program"),
 }
 CASES = [("UnderwaterVehicle", 1), ("UnderwaterVehicle", 2), ("HeavyTop", 2)]
 N_STEPS = 20_000
@@ -44,6 +48,8 @@ def child():
         from vi_jax.engine import _advance
 
         _advance.rolled_iterations = contextlib.nullcontext
+    if "--one-program" in sys.argv:  # the peer of run_chained: one program, compiled after its trace
+        _simulate_looped_in_one_program()
     compile_s = []
     monitoring.register_event_duration_secs_listener(
         lambda event, duration, **_: compile_s.append(duration) if event.endswith("backend_compile_duration") else None
@@ -67,11 +73,29 @@ def child():
     print("JSON " + json.dumps(dict(rows=rows, backend_compile_s=sum(compile_s))))
 
 
+def _simulate_looped_in_one_program():
+    """``vj.simulate``'s concrete DEP call with its loop and node diagnostics in one program (as
+    before ``vi_jax/engine/_overlapped_compiles.py``)."""
+    from vi_jax import _validation as val
+    from vi_jax._saved_nodes import first_rows, saved_capacity
+    from vi_jax.engine import _simulate
+    from vi_jax.engine._compile_options import single_trajectory_jit
+
+    program = single_trajectory_jit(_simulate.loop_program)
+
+    def looped(system, x0, h, n_saved, save_every, **options):
+        every = 1 if save_every == 1 else val.step_count(save_every)
+        sol = program(system, x0, h, val.step_count(n_saved), every, capacity=saved_capacity(n_saved), **options)
+        return first_rows(sol, n_saved + 1)
+
+    _simulate._simulate_looped = looped
+
+
 def main():
     results = {}
-    for name, (flag, unrolled) in CONFIGS.items():
+    for name, (flag, peer) in CONFIGS.items():
         env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flag}".strip())
-        command = [sys.executable, __file__, "--child"] + (["--unrolled"] if unrolled else [])
+        command = [sys.executable, __file__, "--child"] + ([peer] if peer else [])
         run = subprocess.run(command, env=env, capture_output=True, text=True)
         if run.returncode and "Unknown flag" in run.stderr:  # newer XLA (jax 0.11.2) dropped the option
             print(f"{name}: not available in this XLA ({flag})")

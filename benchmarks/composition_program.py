@@ -20,18 +20,21 @@ import vi_jax as vj  # noqa: E402
 from vi_jax.discrete import composition_coefficients  # noqa: E402
 from vi_jax import _saved_nodes  # noqa: E402
 from vi_jax.engine import _simulate  # noqa: E402
+from vi_jax.engine._compile_options import single_trajectory_jit  # noqa: E402
 from vi_jax.engine._advance import traced_composition  # noqa: E402
 from vi_jax.lie import Cayley  # noqa: E402
 
 from _timing import fast_loops_from_argv, time_compiled, write_config_json  # noqa: E402
 
 N_STEPS = 1000
+# The concrete call's loop and node diagnostics as one program (vj.simulate runs them as two).
+_LOOP_PROGRAM = single_trajectory_jit(_simulate.loop_program)
 
 
 def run(system, x0, order, traced):
     rule, gammas = composition_coefficients(order)
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
-    return _simulate._simulate_loop(
+    return _LOOP_PROGRAM(
         system, x0, jnp.asarray(0.01), count(N_STEPS), count(1), capacity=_saved_nodes.saved_capacity(N_STEPS), tau=Cayley(),
         rule=rule, gammas=traced_composition(gammas) if traced else gammas, rtol=_simulate._default_rtol(jnp.float64), max_iter=20,
     ).g

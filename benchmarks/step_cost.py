@@ -46,6 +46,7 @@ import jax.numpy as jnp  # noqa: E402
 import vi_jax as vj  # noqa: E402
 from vi_jax._saved_nodes import SAVE_BLOCK, first_rows, saved_capacity  # noqa: E402
 from vi_jax.engine import _advance, _simulate  # noqa: E402
+from vi_jax.engine._compile_options import single_trajectory_jit  # noqa: E402
 from vi_jax.lie import _small  # noqa: E402
 from vi_jax.solvers import CHORD_ITERATIONS, _newton  # noqa: E402
 
@@ -55,6 +56,8 @@ from _timing import time_alternately, write_json  # noqa: E402
 from hand_vehicle import node_diagnostics_hand, simulate_hand, vehicle_params  # noqa: E402
 
 
+# The concrete call's loop and node diagnostics as one program (vj.simulate runs them as two).
+_LOOP_PROGRAM = single_trajectory_jit(_simulate.loop_program)
 HAND = "hand-specialised eq. (88), 3 Newton its"
 WITH_DIAGNOSTICS = "hand-specialised eq. (88) + node diagnostics by hand"
 
@@ -63,7 +66,7 @@ def _with_traced_save_every(system, x0, h, n_saved, save_every, **options):
     """``vj.simulate``'s looped program with ``save_every`` traced even when it is 1: a node loop
     and a step loop of traced lengths (the peer of ``_every_step_in_blocks``)."""
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
-    sol = _simulate._simulate_loop(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
+    sol = _LOOP_PROGRAM(system, x0, h, count(n_saved), count(save_every), capacity=saved_capacity(n_saved), **options)
     return first_rows(sol, n_saved + 1)
 
 

@@ -15,6 +15,9 @@ import numpy as np
 import vi_jax as vj
 from vi_jax.solvers import newton_root
 
+# The programs of a concrete DEP vj.simulate: the loop, then the node diagnostics.
+CONCRETE_DEP_PROGRAMS = ("jit(_loop_nodes)", "jit(_assemble_rows)")
+
 # In a fresh process: the programs that building each scene and its initial state asks for (each
 # eager operation on concrete values is one, 20–50 ms to compile on a 2-core machine).
 _SETUP_PROGRAMS = """
@@ -43,7 +46,7 @@ def test_runs_of_different_lengths_share_one_program(caplog):
         long = vj.simulate(model, x0, 0.01, 1024)
         sparse = vj.simulate(model, x0, 0.01, 3072, save_every=3)
     assert long.g.shape[0] == sparse.g.shape[0] == 1025
-    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_simulate_loop)")]
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith(tuple(f"Compiling {p}" for p in CONCRETE_DEP_PROGRAMS))]
     assert compiled == []
 
 
@@ -56,7 +59,7 @@ def test_orders_2_4_and_6_share_one_program(caplog):
         runs.update({order: vj.simulate(model, x0, 0.05, 20, order=order) for order in (4, 6)})
     finals = [np.asarray(sol.g[-1]) for sol in runs.values()]
     assert not any(np.array_equal(a, b) for a, b in zip(finals, finals[1:]))  # different schemes ran
-    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling jit(_simulate_loop)")]
+    compiled = [r.getMessage() for r in caplog.records if r.getMessage().startswith(tuple(f"Compiling {p}" for p in CONCRETE_DEP_PROGRAMS))]
     assert compiled == []
 
 
@@ -149,7 +152,8 @@ def test_building_a_scene_compiles_few_programs():
     assert all(n <= 16 for n in counts.values()), counts
 
 
-# In a fresh process: the programs a first concrete vj.simulate compiles, by name.
+# In a fresh process: the programs a first concrete vj.simulate compiles, by name (those of a
+# second call too, after "second").
 _FIRST_CALL_PROGRAMS = """
 import logging, jax
 jax.config.update("jax_enable_x64", True)
@@ -162,6 +166,8 @@ logging.getLogger("jax").addHandler(handler)
 logging.getLogger("jax").setLevel(logging.DEBUG)
 with jax.log_compiles():
     vj.simulate(model, x0, 0.01, 100)
+    print("second")
+    vj.simulate(model, x0, 0.01, 200)
 """
 
 
@@ -170,8 +176,17 @@ def test_a_first_call_compiles_no_conversion():
     (each a program to compile, 15–20 ms: ``jnp.asarray`` of a number compiles one)."""
     out = subprocess.run([sys.executable, "-c", _FIRST_CALL_PROGRAMS], capture_output=True, text=True, check=True).stdout
     programs = out.split()
-    assert "jit(_simulate_loop)" in programs, programs
     assert not [p for p in programs if "convert_element_type" in p or "stage" in p], programs
+
+
+def test_a_first_call_compiles_its_two_programs_once():
+    """The loop's program, compiled on a thread while the node diagnostics' program is traced
+    for the avals of its outputs, is the one the call runs, and so is that one (placeholders of
+    other avals would compile both again); a second call compiles nothing."""
+    programs = subprocess.run([sys.executable, "-c", _FIRST_CALL_PROGRAMS], capture_output=True, text=True, check=True).stdout.split()
+    first, second = programs[: programs.index("second")], programs[programs.index("second") + 1 :]
+    assert sorted(p for p in first if p in CONCRETE_DEP_PROGRAMS) == sorted(CONCRETE_DEP_PROGRAMS), first
+    assert second == [], second
 
 
 def test_newton_traces_the_residual_once():

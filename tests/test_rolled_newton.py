@@ -80,5 +80,5 @@ def test_the_vehicles_order_2_concrete_loops_are_one_kernel():
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
     rule, gammas = composition_coefficients(2)
     options = dict(capacity=16, tau=vj.lie.difference_map("cayley"), rule=rule, gammas=traced_composition(gammas), rtol=1e-14, max_iter=20)
-    lowered = _simulate._simulate_loop.lower(system, system.initial_state(), jnp.asarray(0.01), count(12), 1, **options)
+    lowered = _simulate._loop_nodes_jit.lower(system, system.initial_state(), jnp.asarray(0.01), count(12), 1, **options)
     assert one_kernel_calls(lowered.compile().compiled) == 1

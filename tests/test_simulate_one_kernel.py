@@ -40,7 +40,7 @@ def test_the_loops_are_one_kernel_under_jit_and_in_the_concrete_program(name):
     count = lambda n: jnp.asarray(n, jnp.int32)  # noqa: E731
     options = dict(capacity=16, tau=vj.lie.difference_map("cayley"), rule="left", gammas=(1.0,), rtol=1e-14, max_iter=20)
     for save_every in (1, count(3)):  # every step saved (blocks of steps), a node every few steps
-        lowered = _simulate._simulate_loop.lower(system, x0, jnp.asarray(0.01), count(12), save_every, **options)
+        lowered = _simulate._loop_nodes_jit.lower(system, x0, jnp.asarray(0.01), count(12), save_every, **options)
         assert one_kernel_calls(lowered.compile().compiled) == 1
 
 

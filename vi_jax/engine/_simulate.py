@@ -21,6 +21,7 @@ from .._precision import full_precision
 from ..lie._small import keeping_dots
 from .._saved_nodes import first_rows, saved_capacity
 from ._node_velocities import node_velocities
+from ._overlapped_compiles import run_chained
 from ._simulate_splitting import simulate_splitting
 from ._solution import Solution, node_invariants, validate_inputs
 
@@ -190,10 +191,16 @@ def _simulate_scan(system, x0, h, n_saved, *, tau, rule, gammas, save_every, rto
     return _assemble_rows(system, states, stats, h, save_every, rtol, max_iter)
 
 
-def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
-    """The DEP run with traced step counts, ``capacity`` + 1 node rows (not jitted)."""
+def _loop_nodes(system, x0, h, n_saved, save_every, *, capacity, tau, rule, gammas, rtol, max_iter):
+    """The DEP loop with traced step counts: ``capacity`` + 1 node rows and their step stats."""
     state0 = _initial(system, x0)
     _, states, stats = advance_loop(system, tau, rule, gammas, h, state0, n_saved, save_every, capacity, rtol, max_iter)
+    return states, stats
+
+
+def _simulate_loop(system, x0, h, n_saved, save_every, *, capacity, rtol, max_iter, **options):
+    """The DEP run with traced step counts, ``capacity`` + 1 node rows (not jitted)."""
+    states, stats = _loop_nodes(system, x0, h, n_saved, save_every, capacity=capacity, rtol=rtol, max_iter=max_iter, **options)
     return _assemble_rows(system, states, stats, h, save_every, rtol, max_iter)
 
 
@@ -211,7 +218,8 @@ def _simulate_scan_batched(*args, **kwargs):
 # Jitted under the same names (compile logs and tests/test_program_reuse.py name them).
 _simulate_scan = eqx.filter_jit(_simulate_scan)  # traced inputs only: under a transformation
 _simulate_scan_batched = eqx.filter_jit(_simulate_scan_batched)
-_simulate_loop = single_trajectory_jit(_simulate_loop)
+_loop_nodes_jit = single_trajectory_jit(_loop_nodes)
+_nodes_solution = single_trajectory_jit(_assemble_rows)
 
 
 _initial_jit = single_trajectory_jit(_initial)
@@ -220,14 +228,18 @@ _assemble_jit = single_trajectory_jit(_assemble)
 
 
 def _simulate_looped(system, x0, h, n_saved, save_every, **options):
-    """The looped program (traced step counts) on concrete inputs, its saved rows cut to the run's.
-    It holds Newton's full iterations: with the Jacobian factored once per step
-    (:func:`~vi_jax.solvers.lu_factor`), this program's steps cost 0.79–0.82× those of a
+    """The looped programs (traced step counts) on concrete inputs, the saved rows cut to the
+    run's: the loop, then the node diagnostics, compiled side by side on their first call
+    (:func:`~._overlapped_compiles.run_chained`).
+    The loop holds Newton's full iterations: with the Jacobian factored once per step
+    (:func:`~vi_jax.solvers.lu_factor`), its steps cost 0.79–0.82× those of a
     program without them on the vehicle (orders 1, 2), 0.90–1.06× on the heavy top and the rigid
     body (``python benchmarks/newton_plan.py [--fast-loops]``), so it is run alone; ``vj.ensemble``'s
     generated step still runs the one without them first (:func:`~._ensemble.optimistically`)."""
     every = 1 if save_every == 1 else val.step_count(save_every)  # every step saved: a program of its own
-    sol = _simulate_loop(system, x0, h, val.step_count(n_saved), every, capacity=saved_capacity(n_saved), **options)
+    args = (system, x0, h, val.step_count(n_saved), every)
+    rows = lambda nodes: (system, *nodes, h, every, options["rtol"], options["max_iter"])  # noqa: E731
+    sol = run_chained(_loop_nodes_jit, args, dict(capacity=saved_capacity(n_saved), **options), _nodes_solution, rows)
     return first_rows(sol, n_saved + 1)
 
 
