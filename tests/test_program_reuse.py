@@ -189,6 +189,31 @@ def test_a_first_call_compiles_its_two_programs_once():
     assert second == [], second
 
 
+_FIRST_SPLITTING_PROGRAMS = """
+import logging, jax
+jax.config.update("jax_enable_x64", True)
+import vi_jax as vj
+model = vj.models.HeavyTop()
+x0 = jax.block_until_ready(model.initial_state())
+handler = logging.Handler()
+handler.emit = lambda record: print(record.getMessage().split()[1]) if record.getMessage().startswith("Compiling ") else None
+logging.getLogger("jax").addHandler(handler)
+logging.getLogger("jax").setLevel(logging.DEBUG)
+with jax.log_compiles():
+    vj.simulate(model, x0, 0.01, 100, scheme="splitting")
+"""
+
+
+def test_a_first_splitting_call_compiles_no_eager_operation():
+    """The splitting's set-up (J, M and the frame: ``_derive``; the algebra axes: one program of
+    hat and ad; the separability verdict, read on the host) and its loop: no program for a single
+    operation (each 15–100 ms to compile; ~25 of them before)."""
+    out = subprocess.run([sys.executable, "-c", _FIRST_SPLITTING_PROGRAMS], capture_output=True, text=True, check=True).stdout
+    programs = out.split()
+    assert "jit(_run_loop)" in programs, programs
+    assert [p for p in programs if p not in ("jit(_derive)", "jit(_run_loop)", "jit(<lambda>)")] == [], programs
+
+
 def test_newton_traces_the_residual_once():
     """The Jacobian, the chord steps, the full iterations and the implicit-function gradient
     replay the residual's jaxpr (Python model code runs once per step traced)."""

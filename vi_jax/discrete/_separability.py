@@ -131,8 +131,8 @@ def enforce(residuals, x, *, concrete, throw=True):
     ``error_if`` costs ~0.1 ms per call on CPU: ``benchmarks/splitting_overhead.py``)."""
     separable = True
     for message, ratio in residuals:
-        if concrete:
-            if not bool(ratio <= 1.0):
+        if concrete:  # compared on the host: no program to compile
+            if not np.asarray(ratio) <= 1.0:
                 raise ValueError(f"system: {message} (residual {float(ratio):.3g} × the round-off tolerance)")
         elif throw:
             x = eqx.error_if(x, ~(ratio <= 1.0), f"system: {message}")

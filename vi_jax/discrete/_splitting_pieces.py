@@ -95,18 +95,20 @@ def _check_group(system):
 
 @functools.cache
 def _axes(G):
-    """Static (planes, pairs) of the algebra axes of G ∈ {SO3, SOn}, from hat(e_k) and ad_{e_k};
-    kept per group: evaluated op by op at every call it cost a concrete splitting call of the
-    vehicle 9.1 ms outside its program instead of 3.4–3.5 (``python benchmarks/call_overhead.py``,
-    default XLA)."""
+    """Static (planes, pairs) of the algebra axes of G ∈ {SO3, SOn}, from hat(e_k) and ad_{e_k},
+    evaluated by one compiled program (op by op, a fresh process's first splitting call compiled
+    a program for each of ~25 operations); kept per group: at every call it cost a concrete
+    splitting call of the vehicle 9.1 ms outside its program instead of 3.4–3.5 (``python
+    benchmarks/call_overhead.py``, default XLA)."""
+    basis = np.eye(G.dim)  # a compiled program runs at once, also while a caller is traced
+    program = jax.jit(lambda basis: (jax.vmap(G.hat)(basis), jax.vmap(G.ad)(basis))).lower(basis).compile()
+    hats, ads = program(basis)
     planes, pairs = [], []
-    with jax.ensure_compile_time_eval():
-        for k in range(G.dim):
-            e = jnp.eye(G.dim)[k]
-            (j, i), = np.argwhere(np.asarray(G.hat(e)) > 0.5)  # hat(e_k) = e_j e_iᵀ − e_i e_jᵀ
-            planes.append((int(i), int(j)))
-            A = np.asarray(G.ad(e)).T  # Ad*_{exp θê_k} = exp(θ adᵀ_{e_k}), A³ = −A
-            pairs.append(tuple((int(m1), int(m2), float(A[m1, m2])) for m1, m2 in np.argwhere(np.triu(np.abs(A) > 0.5))))
+    for hat, ad in zip(np.asarray(hats), np.asarray(ads)):
+        (j, i), = np.argwhere(hat > 0.5)  # hat(e_k) = e_j e_iᵀ − e_i e_jᵀ
+        planes.append((int(i), int(j)))
+        A = ad.T  # Ad*_{exp θê_k} = exp(θ adᵀ_{e_k}), A³ = −A
+        pairs.append(tuple((int(m1), int(m2), float(A[m1, m2])) for m1, m2 in np.argwhere(np.triu(np.abs(A) > 0.5))))
     return tuple(planes), tuple(pairs)
 
 
