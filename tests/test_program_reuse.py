@@ -152,30 +152,38 @@ def test_building_a_scene_compiles_few_programs():
     assert all(n <= 16 for n in counts.values()), counts
 
 
-# In a fresh process: the programs a first concrete vj.simulate compiles, by name (those of a
-# second call too, after "second").
-_FIRST_CALL_PROGRAMS = """
+def _first_call_programs(scene, *calls):
+    """In a fresh process: the names of the programs that ``calls`` (``vj.simulate`` argument
+    strings after the scene and its initial state) compile, one after the other; "next" between
+    the calls."""
+    runs = "\n    print('next')\n".join(f"    vj.simulate(model, x0, {call})" for call in calls)
+    script = f"""
 import logging, jax
 jax.config.update("jax_enable_x64", True)
 import vi_jax as vj
-model = vj.models.UnderwaterVehicle()
+model = vj.models.{scene}()
 x0 = jax.block_until_ready(model.initial_state())
 handler = logging.Handler()
 handler.emit = lambda record: print(record.getMessage().split()[1]) if record.getMessage().startswith("Compiling ") else None
 logging.getLogger("jax").addHandler(handler)
 logging.getLogger("jax").setLevel(logging.DEBUG)
 with jax.log_compiles():
-    vj.simulate(model, x0, 0.01, 100)
-    print("second")
-    vj.simulate(model, x0, 0.01, 200)
+{runs}
 """
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.split()
+    per_call = [[]]
+    for name in out:
+        if name == "next":
+            per_call.append([])
+        else:
+            per_call[-1].append(name)
+    return per_call
 
 
 def test_a_first_call_compiles_no_conversion():
     """The step size and the step counts reach the run's program without an eager conversion
     (each a program to compile, 15–20 ms: ``jnp.asarray`` of a number compiles one)."""
-    out = subprocess.run([sys.executable, "-c", _FIRST_CALL_PROGRAMS], capture_output=True, text=True, check=True).stdout
-    programs = out.split()
+    (programs,) = _first_call_programs("UnderwaterVehicle", "0.01, 100")
     assert not [p for p in programs if "convert_element_type" in p or "stage" in p], programs
 
 
@@ -183,33 +191,16 @@ def test_a_first_call_compiles_its_two_programs_once():
     """The loop's program, compiled on a thread while the node diagnostics' program is traced
     for the avals of its outputs, is the one the call runs, and so is that one (placeholders of
     other avals would compile both again); a second call compiles nothing."""
-    programs = subprocess.run([sys.executable, "-c", _FIRST_CALL_PROGRAMS], capture_output=True, text=True, check=True).stdout.split()
-    first, second = programs[: programs.index("second")], programs[programs.index("second") + 1 :]
+    first, second = _first_call_programs("UnderwaterVehicle", "0.01, 100", "0.01, 200")
     assert sorted(p for p in first if p in CONCRETE_DEP_PROGRAMS) == sorted(CONCRETE_DEP_PROGRAMS), first
     assert second == [], second
-
-
-_FIRST_SPLITTING_PROGRAMS = """
-import logging, jax
-jax.config.update("jax_enable_x64", True)
-import vi_jax as vj
-model = vj.models.HeavyTop()
-x0 = jax.block_until_ready(model.initial_state())
-handler = logging.Handler()
-handler.emit = lambda record: print(record.getMessage().split()[1]) if record.getMessage().startswith("Compiling ") else None
-logging.getLogger("jax").addHandler(handler)
-logging.getLogger("jax").setLevel(logging.DEBUG)
-with jax.log_compiles():
-    vj.simulate(model, x0, 0.01, 100, scheme="splitting")
-"""
 
 
 def test_a_first_splitting_call_compiles_no_eager_operation():
     """The splitting's set-up (J, M and the frame: ``_derive``; the algebra axes: one program of
     hat and ad; the separability verdict, read on the host) and its loop: no program for a single
     operation (each 15–100 ms to compile; ~25 of them before)."""
-    out = subprocess.run([sys.executable, "-c", _FIRST_SPLITTING_PROGRAMS], capture_output=True, text=True, check=True).stdout
-    programs = out.split()
+    (programs,) = _first_call_programs("HeavyTop", "0.01, 100, scheme='splitting'")
     assert "jit(_run_loop)" in programs, programs
     assert [p for p in programs if p not in ("jit(_derive)", "jit(_run_loop)", "jit(<lambda>)")] == [], programs
 
