@@ -124,6 +124,14 @@ def positive_definite(name, smallest):
     return (f"{name} is not positive definite (the kinetic energy must be)", jnp.where(smallest > 0, 0.0, 2.0))
 
 
+def _at_most_one(ratio) -> bool:
+    """``ratio`` ≤ 1 for a known value: compared on the host (no program to compile), or, under
+    a transformation (a Lagrangian closing over a traced value), by JAX."""
+    if isinstance(ratio, jax.core.Tracer):
+        return bool(ratio <= 1.0)
+    return float(ratio) <= 1.0
+
+
 def enforce(residuals, x, *, concrete, throw=True):
     """Raise ``ValueError`` for the first failing term (``concrete``: the scene's values are known
     now); for a traced scene attach an ``eqx.error_if`` to ``x`` (``throw``) or only report.
@@ -131,8 +139,8 @@ def enforce(residuals, x, *, concrete, throw=True):
     ``error_if`` costs ~0.1 ms per call on CPU: ``benchmarks/splitting_overhead.py``)."""
     separable = True
     for message, ratio in residuals:
-        if concrete:  # compared on the host: no program to compile
-            if not np.asarray(ratio) <= 1.0:
+        if concrete:
+            if not _at_most_one(ratio):
                 raise ValueError(f"system: {message} (residual {float(ratio):.3g} × the round-off tolerance)")
         elif throw:
             x = eqx.error_if(x, ~(ratio <= 1.0), f"system: {message}")
