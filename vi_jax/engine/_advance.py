@@ -170,7 +170,19 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         return _scanned_nodes(one_step, carry, length, save_every, checkpoint)
 
     # The program of checkpoint=False unless differentiated, one kernel where it can be.
-    return checkpointed(program, one_step, _with_previous(state), checkpoint=checkpoint, forward=in_one_kernel)
+    forward = in_one_kernel if len(gammas) == 1 else _default_plan
+    return checkpointed(program, one_step, _with_previous(state), checkpoint=checkpoint, forward=forward)
+
+
+def _default_plan(program):
+    """``program`` on XLA:CPU's default loop plan: the forward program of a composition (orders 4
+    and 6) under a transformation. XLA:CPU aborts the process compiling a one-kernel region whose
+    step holds the rolled loop over the sub-steps of static length (jax 0.10.2: "Check failed:
+    slice_to_buffer_table_index_.empty() || has_explicit_index", the heavy top and the rigid body
+    at orders 4 and 6 under ``jit``; unrolled, or with the concrete call's traced count, it
+    compiles; tests/test_simulate_one_kernel.py). The vehicle's compositions are too large for
+    one kernel anyway (``ONE_KERNEL_EQUATIONS``)."""
+    return program
 
 
 def _scanned_nodes(one_step, carry, length, save_every, checkpoint):
