@@ -109,8 +109,11 @@ def traced_once(fn, z):
     small products as multiply-and-sum (:func:`~vi_jax.lie._small.fused_products`). Newton's
     Jacobian, chord steps, full iterations and ``custom_root`` call it six times: replaying
     skips the model's Python code (the vehicle's first ``vj.simulate`` call 2.76 → 2.31 s,
-    most of it tracing and lowering; README, "Compiling")."""
-    return traced_with_fused_products(fn, z)
+    most of it tracing and lowering; README, "Compiling"). The replay is a ``jax.jit``: its
+    jaxpr is built once and so are its JVP and batched jaxprs (JAX caches them per jaxpr), where
+    each call would otherwise replay the residual under forward mode and ``vmap`` anew; XLA
+    inlines the calls."""
+    return jax.jit(traced_with_fused_products(fn, z))
 
 
 _ROLLED = False
