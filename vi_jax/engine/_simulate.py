@@ -219,7 +219,7 @@ def _simulate_scan_batched(*args, **kwargs):
 _simulate_scan = eqx.filter_jit(_simulate_scan)  # traced inputs only: under a transformation
 _simulate_scan_batched = eqx.filter_jit(_simulate_scan_batched)
 _loop_nodes_jit = single_trajectory_jit(_loop_nodes)
-_nodes_solution = single_trajectory_jit(_assemble_rows)
+_assemble_rows_jit = single_trajectory_jit(_assemble_rows)
 
 
 _initial_jit = single_trajectory_jit(_initial)
@@ -239,7 +239,7 @@ def _simulate_looped(system, x0, h, n_saved, save_every, **options):
     every = 1 if save_every == 1 else val.step_count(save_every)  # every step saved: a program of its own
     args = (system, x0, h, val.step_count(n_saved), every)
     rows = lambda nodes: (system, *nodes, h, every, options["rtol"], options["max_iter"])  # noqa: E731
-    sol = run_chained(_loop_nodes_jit, args, dict(capacity=saved_capacity(n_saved), **options), _nodes_solution, rows)
+    sol = run_chained(_loop_nodes_jit, args, dict(capacity=saved_capacity(n_saved), **options), _assemble_rows_jit, rows)
     return first_rows(sol, n_saved + 1)
 
 
