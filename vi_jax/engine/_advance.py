@@ -267,11 +267,14 @@ def _node_block(state, save_every):
     return SAVE_BLOCK
 
 
-def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter):
+def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capacity, rtol, max_iter, previous=None):
     """``n_nodes`` (traced, ≤ ``capacity``) saved nodes of ``save_every`` (traced, or the static
     1: :func:`_every_step_in_blocks`) steps each; ``gammas`` may be a :class:`TracedComposition`.
+    ``previous``: the unknowns ξ_{k−1} of the step before ``state`` (Newton's extrapolated first
+    guess, :func:`extrapolation`), as a run continued in pieces carries them; None before the
+    first step.
 
-    Returns (final state, saved states, stats), the last two with ``capacity`` + 1 rows: row 0
+    Returns (final carry (state, ξ_{k−1}), saved states, stats), the last two with ``capacity`` + 1 rows: row 0
     the initial state with zero stats, row k + 1 node k; rows past ``n_nodes`` repeat the
     initial state (valid data for the node diagnostics) with zero stats. The buffers start as
     the initial state, so the Solution's rows need no copy to put it first (a copy of every
@@ -292,11 +295,11 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
 
-    def loops(state, n_nodes, save_every):
+    def loops(state, previous, n_nodes, save_every):
         saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity + 1,) + x.shape), state)
         stats = jax.tree.map(lambda s: jnp.broadcast_to(s, (capacity + 1,)), StepStats.zeros(state.z.dtype))
         if save_every is None:
-            return _every_step_in_blocks(one_step, state, saved, stats, n_nodes)
+            return _every_step_in_blocks(one_step, (state, previous), saved, stats, n_nodes)
 
         def node(k, carry):
             carry, saved, stats = carry
@@ -304,18 +307,18 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
             put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k + 1, 0)  # noqa: E731
             return carry, jax.tree.map(put, saved, carry[0]), jax.tree.map(put, stats, worst)
 
-        (state, _), saved, stats = loop_saved_nodes(node, (_with_previous(state), saved, stats), n_nodes)
-        return state, saved, stats
+        return loop_saved_nodes(node, ((state, previous), saved, stats), n_nodes)
 
     def rolled_loops(*args):
         with rolled_iterations():
             return loops(*args)
 
     every_step = isinstance(save_every, int) and save_every == 1  # None: a program of its own
-    return in_one_kernel(rolled_loops, default_plan=loops)(state, n_nodes, None if every_step else save_every)
+    previous = no_previous(state.z) if previous is None else previous
+    return in_one_kernel(rolled_loops, default_plan=loops)(state, previous, n_nodes, None if every_step else save_every)
 
 
-def _every_step_in_blocks(one_step, state, saved, stats, n_nodes):
+def _every_step_in_blocks(one_step, carry, saved, stats, n_nodes):
     """:func:`advance_loop` with every step saved: a loop over blocks of :func:`step_block`
     steps (the capacity is a multiple of it), each a scan of static length written into the
     buffers at once, as :func:`advance_scan` does; the steps of the last block past ``n_nodes``
@@ -323,6 +326,7 @@ def _every_step_in_blocks(one_step, state, saved, stats, n_nodes):
     a known trip count and no large buffer: the vehicle's looped program ran 0.87–0.93× as long
     as with a node loop and a step loop of traced lengths, default XLA (python
     benchmarks/step_cost.py, its row "concrete call, every node saved, traced save_every")."""
+    state = carry[0]
     block = step_block(state)
     capacity = saved.z.shape[0] - 1
     if capacity % block:
@@ -344,5 +348,4 @@ def _every_step_in_blocks(one_step, state, saved, stats, n_nodes):
         return carry, jax.tree.map(put, saved, rows), jax.tree.map(put, stats, row_stats)
 
     n_blocks = (n_nodes + block - 1) // block
-    (state, _), saved, stats = jax.lax.fori_loop(0, n_blocks, nodes, (_with_previous(state), saved, stats))
-    return state, saved, stats
+    return jax.lax.fori_loop(0, n_blocks, nodes, (carry, saved, stats))

@@ -248,14 +248,17 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
     from tqdm.auto import tqdm
 
     state0 = state = _initial_jit(system, x0)
+    # ξ_{k−1} (none yet: NaN), carried from piece to piece: Newton's guesses are the plain run's
+    previous = np.full(state.z.shape, np.nan, state.z.dtype)
     n_chunks = min(n_saved, 100)
     sizes = [n_saved // n_chunks + (i < n_saved % n_chunks) for i in range(n_chunks)]
     capacity = saved_capacity(sizes[0])
     saved_parts, stats_parts = [], []
     with tqdm(total=n_saved * save_every, unit="step", desc="simulate") as bar:
         for size in sizes:
-            state, saved, stats = _advance_loop_jit(
-                system, tau, rule, gammas, h, state, val.step_count(size), val.step_count(save_every), capacity, rtol, max_iter
+            (state, previous), saved, stats = _advance_loop_jit(
+                system, tau, rule, gammas, h, state, val.step_count(size), val.step_count(save_every), capacity, rtol, max_iter,
+                previous,
             )
             saved_parts.append(jax.tree.map(lambda x: x[1 : size + 1], saved))  # row 0: the piece's start
             stats_parts.append(jax.tree.map(lambda x: x[1 : size + 1], stats))
