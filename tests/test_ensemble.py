@@ -62,8 +62,8 @@ def test_ensemble_equals_simulate_member_by_member(method):
     assert_members_equal(sol, refs, vmap_rtol if method == "vmap" else 1e-10)
     assert np.all(np.asarray(member_converged(sol)))
     assert np.max(np.asarray(sol.newton_residual)) <= 64 * np.finfo(float).eps
-    # Smooth members converge on the common path (Newton + at most 2 chord steps) at every step.
-    assert np.all(np.asarray(sol.newton_iterations)[:, 1:] <= 1 + vj.solvers.CHORD_ITERATIONS)
+    # Smooth members converge on the common path (Newton + 2 chord steps) at every step.
+    assert np.all(np.asarray(sol.newton_iterations)[:, 1:] == 3)
 
 
 def test_chunks_padding_and_conservation_per_member():

@@ -244,9 +244,7 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
     """The accelerator plan (every member in every kernel, no fusion boundaries) against the CPU
     plan (chunks of 64 members, conditionals as fusion boundaries), both run here: the same
     steps, equal to round-off (XLA may contract the two programs differently: a few ε per step
-    over 120 steps, far below 1e-12). The CPU plan's first guess is extrapolated, the
-    accelerator plan's is not: Newton may stop one chord step apart there, both on the common
-    path."""
+    over 120 steps, far below 1e-12)."""
     from vi_jax.engine import _ensemble
 
     system, x0, tau, order, h = _scene("heavy top, Cayley, order 2")
@@ -255,11 +253,7 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
     for platform in ("cpu", "gpu"):
         monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None, p=platform: p)
         plans[platform] = vj.ensemble(system, states, h, 120, order=order, save_every=40, method="batched")
-    iterations = [np.asarray(plans[p].newton_iterations)[:, 1:] for p in ("gpu", "cpu")]
-    assert np.all(np.abs(iterations[0] - iterations[1]) <= 1)
-    assert np.all(np.stack(iterations) <= 1 + vj.solvers.CHORD_ITERATIONS)
-    for a, b in zip(jax.tree.leaves(eqx.tree_at(lambda s: s.newton_iterations, plans["gpu"], None)),
-                    jax.tree.leaves(eqx.tree_at(lambda s: s.newton_iterations, plans["cpu"], None))):
+    for a, b in zip(jax.tree.leaves(plans["gpu"]), jax.tree.leaves(plans["cpu"])):
         a, b = np.asarray(a), np.asarray(b)
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
 

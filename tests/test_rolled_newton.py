@@ -86,14 +86,3 @@ def test_the_vehicles_order_2_concrete_loops_are_one_kernel():
     options = dict(capacity=16, tau=vj.lie.difference_map("cayley"), rule=rule, gammas=traced_composition(gammas), rtol=1e-14, max_iter=20)
     lowered = _simulate._loop_nodes_jit.lower(system, system.initial_state(), jnp.asarray(0.01), count(12), 1, **options)
     assert one_kernel_calls(lowered.compile().compiled) == 1
-
-
-@pytest.mark.parametrize("rolled", [False, True])
-def test_newton_stops_at_the_first_converged_chord_step(rolled):
-    """From a guess 1e-6 off the root, the Newton step leaves an error ~1e-12 and one chord
-    step ~1e-18, below the tolerance: Newton stops after that chord step (two iterations, not
-    the three of a fixed second chord step), rolled and unrolled, at the root to round-off."""
-    root = _solve(jnp.zeros(3), 20, rolled=False)[0]
-    z, stats = _solve(root + 1e-6, 20, rolled=rolled)
-    assert int(stats.iterations) == 2 and int(stats.result) == vj.solvers.SUCCESS
-    np.testing.assert_allclose(z, root, rtol=0, atol=8 * np.finfo(np.float64).eps * float(jnp.max(jnp.abs(root))))

@@ -28,8 +28,8 @@ tests/test_generated_step.py):
 
 Speeds: ``python benchmarks/ensemble_vs_vmap.py [--fast-loops]``.
 
-Newton in every path follows ``vj.simulate`` (one Newton step, up to two chord steps while the
-check fails, a final correction; the generated step on CPU may start from factors carried from an earlier step where
+Newton in every path follows ``vj.simulate`` (one Newton step, two chord steps, a check, a final
+correction; the generated step on CPU may start from factors carried from an earlier step where
 its Jacobian is costly): the fallback iterations run only while some member has not converged,
 and only the unconverged members are updated, so per-member results do not depend on the other
 members (nor on how the ensemble is sharded). Per-member convergence is in ``Solution.newton_iterations``,

@@ -8,8 +8,7 @@ and its forward-mode Jacobian, the F⁺ update — each run on component arrays
 (:func:`componentwise`): every array of a piece is held as its components, arrays over the
 members, so XLA fuses a whole Newton iteration into one loop over the members. Newton itself
 (:func:`newton_members`) runs on those tuples with the iteration of ``vj.simulate``: one
-Newton step, up to two chord steps (each member stops at its first converged iterate), masked
-fallback iterations while a member has not
+Newton step, two chord steps, a check, masked fallback iterations while a member has not
 converged, a final correction, implicit-function gradients; on the CPU plan, where the
 Jacobian costs most, the first step may be a chord step on factors carried from an earlier step
 (:func:`make_step`, :func:`~._member_newton.next_periods`). On the CPU plan a single-stage step

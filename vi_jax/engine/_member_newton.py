@@ -1,7 +1,7 @@
 """Newton's method for every member of an ensemble at once, on component arrays: the unknowns
 are a tuple of arrays over the members, nothing couples two members. The iteration is
-``vj.simulate``'s (:func:`vi_jax.solvers.newton_root`): one Newton step, chord steps until
-a member's check passes (each member at its first converged iterate), masked fallback Newton steps while some member has not converged, a final correction;
+``vj.simulate``'s (:func:`vi_jax.solvers.newton_root`): one Newton step, chord steps, a check,
+masked fallback Newton steps while some member has not converged, a final correction;
 implicit-function gradients through ``jax.lax.custom_root`` (``implicit_root``).
 
 Carried factors (the generated step, one step after another): the first Newton step may use
@@ -283,23 +283,17 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             z = _axpy(-1.0, lu_solve(factors, r), z)
             r, scale = fn(z)
             return _finish(jnp.ones(jnp.shape(scale), jnp.int32), z, r, scale)
-        def active_of(i, r, scale):
-            return (i < max_iterations) & not_converged(r, scale) & finite(r)
-
         n_chord = max(min(chord_iterations, max_iterations - 1), 0)
         early = jnp.zeros(jnp.shape(scale), bool)
-        iterates = []
         for k in range(1 + n_chord):
             z = _axpy(-1.0, lu_solve(factors, r), z)
             r, scale = fn(z)
             if k == n_chord - 1:
                 early = norm(r) <= EARLY * rtol * scale
-            iterates.append((jnp.full(jnp.shape(scale), k + 1, jnp.int32), z, r, scale))
-        # Each member at the first iterate where it converged (or is not finite), as
-        # vj.simulate's Newton stops there (vi_jax.solvers.newton_root): all computed, then chosen.
-        i, z, r, scale = iterates[-1]
-        for state in reversed(iterates[:-1]):
-            i, z, r, scale = _where(active_of(state[0], *state[2:]), (i, z, r, scale), state)
+        i = jnp.full(jnp.shape(scale), 1 + n_chord, jnp.int32)
+
+        def active_of(i, r, scale):
+            return (i < max_iterations) & not_converged(r, scale) & finite(r)
 
         def body(state):
             i, z, r, scale, factors, active = state

@@ -200,15 +200,10 @@ class NewtonStats(eqx.Module):
 def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS, explicit=None):
     """Root of ``fn(z) -> (residual, scale)`` near ``z0`` (a good guess: the previous step).
 
-    One Newton step, then up to ``chord_iterations`` steps that reuse its Jacobian (residual-only
-    evaluations) while the convergence check fails: ‖residual‖∞ ≤ rtol·scale, ``scale`` being
-    the size of the terms that cancel in the residual. If it still fails, full Newton iterations
-    continue (up to ``max_iterations`` in all). From the extrapolated guess the vehicle's steps
-    converge after one chord step and the tops' after two: checked after each, the vehicle's
-    concrete loop program (rolled iterations, order 1, the loop option) ran 0.77–0.84× as long
-    as with a fixed second chord step (minima of 25 alternate runs, four processes of a
-    throwaway A/B); the unrolled iterations compute every chord step and choose the first
-    converged one (the same iterates and statistics: tests/test_rolled_newton.py). A final correction with the Jacobian at hand follows the check:
+    One Newton step, then ``chord_iterations`` steps that reuse its Jacobian (residual-only
+    evaluations), then a convergence check: ‖residual‖∞ ≤ rtol·scale, ``scale`` being the size of
+    the terms that cancel in the residual. If it fails, full Newton iterations continue (up to
+    ``max_iterations`` in all). A final correction with the Jacobian at hand follows the check:
     stopping at the tolerance itself would leave an O(rtol) bias per step that accumulates in the
     conserved quantities. A ``while_loop`` iteration inside ``lax.scan`` costs more on CPU than
     the arithmetic of a small step, so the common path has none (benchmarks/step_cost.py), but
@@ -271,15 +266,6 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
             i, _, r, scale, _ = state
             return (i < max_iterations) & not_converged(r, scale) & jnp.all(jnp.isfinite(r))
 
-        def first_stop(iterates):
-            """The first of the chord steps' ``iterates`` (i, z, r, scale) where :func:`rolled`
-            stops (converged or not finite), else the last: all computed, then selected (a
-            conditional per chord step costs more on XLA:CPU's default loop plan)."""
-            chosen = iterates[-1]
-            for state in reversed(iterates[:-1]):
-                chosen = jax.tree.map(lambda a, b: jnp.where(cond(state + (None,)), b, a), state, chosen)
-            return chosen
-
         def body(state):
             i, z, r, _, factors = state
             z = z - lu_solve(factors, r)
@@ -291,7 +277,7 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
 
             def going(state):
                 k, *rest = state  # k evaluations so far: k − 1 iterations
-                return (k < 2) | cond((k - 1, *rest))
+                return (k < 2 + n_chord) | cond((k - 1, *rest))
 
             def evaluation(state):
                 k, z, r, _, factors = state
@@ -312,15 +298,13 @@ def newton_root(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIO
             return finish(*rolled(z_init, n_chord))
         r, scale, factors = value_and_factors(z_init)
         z = z_init
-        iterates = []
-        for i in range(1, 2 + n_chord):
+        for _ in range(1 + n_chord):
             z = z - lu_solve(factors, r)
             r, scale = fn(z)
-            iterates.append((jnp.asarray(i, jnp.int32), z, r, scale))
-        state = first_stop(iterates) + (factors,)
+        state = (jnp.asarray(1 + n_chord, jnp.int32), z, r, scale, factors)
         if max_iterations > 1 + n_chord:  # else the full iterations could never run: none compiled
             state = jax.lax.cond(
-                not_converged(*state[2:4]), lambda s: jax.lax.while_loop(cond, body, s), lambda s: s, state
+                not_converged(r, scale), lambda s: jax.lax.while_loop(cond, body, s), lambda s: s, state
             )
         return finish(*state)
 
