@@ -274,9 +274,9 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     guess, :func:`extrapolation`), as a run continued in pieces carries them; None before the
     first step.
 
-    Returns (final carry (state, ξ_{k−1}), saved states, stats), the last two with ``capacity`` + 1 rows: row 0
-    the initial state with zero stats, row k + 1 node k; rows past ``n_nodes`` repeat the
-    initial state (valid data for the node diagnostics) with zero stats. The buffers start as
+    Returns (final carry (state, ξ_{k−1}), saved states, stats), the last two with
+    ``capacity`` + 1 rows: row 0 the initial state with zero stats, row k + 1 node k; rows past
+    ``n_nodes`` repeat the initial state (valid data for the node diagnostics) with zero stats. The buffers start as
     the initial state, so the Solution's rows need no copy to put it first (a copy of every
     saved array: the vehicle's concrete call with every step saved, 50,000 steps, 2.46–2.73× →
     2.38–2.53× the hand-written eq. (88) with the loop option, 1.40–1.44× → 1.37–1.40× with
@@ -295,11 +295,12 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
     """
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
 
-    def loops(state, previous, n_nodes, save_every):
+    def loops(carry, n_nodes, save_every):
+        state = carry[0]
         saved = jax.tree.map(lambda x: jnp.broadcast_to(x, (capacity + 1,) + x.shape), state)
         stats = jax.tree.map(lambda s: jnp.broadcast_to(s, (capacity + 1,)), StepStats.zeros(state.z.dtype))
         if save_every is None:
-            return _every_step_in_blocks(one_step, (state, previous), saved, stats, n_nodes)
+            return _every_step_in_blocks(one_step, carry, saved, stats, n_nodes)
 
         def node(k, carry):
             carry, saved, stats = carry
@@ -307,15 +308,15 @@ def advance_loop(system, tau, rule, gammas, h, state, n_nodes, save_every, capac
             put = lambda buf, x: jax.lax.dynamic_update_index_in_dim(buf, x, k + 1, 0)  # noqa: E731
             return carry, jax.tree.map(put, saved, carry[0]), jax.tree.map(put, stats, worst)
 
-        return loop_saved_nodes(node, ((state, previous), saved, stats), n_nodes)
+        return loop_saved_nodes(node, (carry, saved, stats), n_nodes)
 
     def rolled_loops(*args):
         with rolled_iterations():
             return loops(*args)
 
     every_step = isinstance(save_every, int) and save_every == 1  # None: a program of its own
-    previous = no_previous(state.z) if previous is None else previous
-    return in_one_kernel(rolled_loops, default_plan=loops)(state, previous, n_nodes, None if every_step else save_every)
+    carry = _with_previous(state) if previous is None else (state, previous)
+    return in_one_kernel(rolled_loops, default_plan=loops)(carry, n_nodes, None if every_step else save_every)
 
 
 def _every_step_in_blocks(one_step, carry, saved, stats, n_nodes):

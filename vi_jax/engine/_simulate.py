@@ -248,7 +248,8 @@ def _simulate_with_progress(system, x0, h, n_saved, save_every, *, tau, rule, ga
     from tqdm.auto import tqdm
 
     state0 = state = _initial_jit(system, x0)
-    # ξ_{k−1} (none yet: NaN), carried from piece to piece: Newton's guesses are the plain run's
+    # ξ_{k−1}, carried from piece to piece so that Newton's guesses are the plain run's; none yet:
+    # NaN, as _advance.no_previous, built on the host (an eager full_like compiles a program)
     previous = np.full(state.z.shape, np.nan, state.z.dtype)
     n_chunks = min(n_saved, 100)
     sizes = [n_saved // n_chunks + (i < n_saved % n_chunks) for i in range(n_chunks)]
