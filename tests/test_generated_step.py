@@ -12,6 +12,7 @@ import pytest
 import vi_jax as vj
 from vi_jax.engine._components import components, componentwise, stacked
 from vi_jax.lie import SO3, SOn, LinearAction
+from newton_iterations import assert_rolled_iterations_match
 from test_one_kernel import one_kernel_calls
 
 EPS = np.finfo(np.float64).eps
@@ -129,7 +130,9 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     """Every member equals its own ``vj.simulate`` run: the same scheme and Newton iteration on
     component arrays, so each step may stop at an iterate that differs within Newton's
     tolerance 64ε (a random walk of √n such steps, with a factor 4 for its tail). A fresh
-    Jacobian every step, as ``vj.simulate`` takes (carried factors: tests/test_carried_factors.py)."""
+    Jacobian every step, as ``vj.simulate`` takes (carried factors: tests/test_carried_factors.py);
+    the concrete run's rolled iterations stop at the first converged iterate
+    (:func:`assert_rolled_iterations_match`)."""
     from vi_jax.engine import _generated_step
 
     monkeypatch.setattr(_generated_step, "CARRY_FACTORS", False)
@@ -141,10 +144,11 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     rtol = 4 * 64 * EPS * np.sqrt(n_steps)
     for k in (0, N_MEMBERS - 1):
         ref = vj.simulate(system, jax.tree.map(lambda x: x[k], states), h, n_steps, tau=tau, order=order, save_every=save_every)
-        for field in ("g", "xi", "M", "energy", "kelvin_noether", "newton_iterations", "result"):
+        for field in ("g", "xi", "M", "energy", "kelvin_noether", "result"):
             ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
             assert ours.shape == theirs.shape, field
             assert np.max(np.abs(ours - theirs)) <= rtol * max(np.max(np.abs(theirs)), 1.0), (field, np.max(np.abs(ours - theirs)))
+        assert_rolled_iterations_match(ref.newton_iterations, sol.newton_iterations[k])
     kn = np.asarray(sol.kelvin_noether).reshape(N_MEMBERS, n_steps // save_every + 1, -1)
     scale = np.asarray(sol.kelvin_noether_scale).reshape(N_MEMBERS, -1).max(axis=1)
     assert np.all(np.max(np.abs(kn - kn[:, :1]), axis=(1, 2)) <= 1e-12 * scale)
@@ -380,7 +384,7 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
     and with per-member masses, and the members still equal their own ``vj.simulate`` runs (a
     6×6 Newton there); at order 2 the rule couples ξ and ν: no block."""
     from vi_jax.discrete import composition_coefficients
-    from vi_jax.engine import _ensemble, _generated_step, _member_newton
+    from vi_jax.engine import _generated_step, _member_newton
     from vi_jax.engine._member_newton import explicit_block
     from vi_jax.lie import difference_map
 
@@ -409,9 +413,10 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
         for k in (0, N_MEMBERS - 1):
             member = system if axes is None else jax.tree.map(lambda x: x[k], systems)
             ref = vj.simulate(member, jax.tree.map(lambda x: x[k], states), 0.01, n_steps, save_every=8)
-            for field in ("g", "xi", "nu", "M", "P", "newton_iterations", "result"):
+            for field in ("g", "xi", "nu", "M", "P", "result"):
                 ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
                 assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * max(np.max(np.abs(theirs)), 1.0), field
+            assert_rolled_iterations_match(ref.newton_iterations, sol.newton_iterations[k])
     jax.clear_caches()
 
     def block_of(order):  # traced only

@@ -1,7 +1,7 @@
-"""A concrete ``vj.simulate`` (and ``vj.ensemble`` through the generated step) runs first the
-program without Newton's full iterations (one Newton step and the chord steps), and the program
-with them only when a step needs them: either way every step equals the same step of the traced
-program, which always holds them."""
+"""A concrete ``vj.simulate`` (rolled iterations, stopping at the first converged iterate) and
+``vj.ensemble`` through the generated step (which runs first the program without Newton's full
+iterations, and the program with them only when a step needs them): either way every step
+equals the same step of the traced program, which always holds them."""
 
 import equinox as eqx
 import jax
@@ -11,6 +11,8 @@ import pytest
 import vi_jax as vj
 from vi_jax.engine import _ensemble
 
+from newton_iterations import assert_rolled_iterations_match
+
 EPS = np.finfo(np.float64).eps
 
 
@@ -18,7 +20,8 @@ EPS = np.finfo(np.float64).eps
 def test_concrete_run_equals_the_traced_run(h, needs_full_iterations):
     """The heavy top converges in the common path at h = 0.005 and needs full iterations at
     h = 0.02: the concrete run equals the jitted one (static scan, full iterations compiled)
-    to Newton's tolerance (64ε per step, a √n random walk, a factor 4 for its tail)."""
+    to Newton's tolerance (64ε per step, a √n random walk, a factor 4 for its tail), its
+    iterations those of :func:`assert_rolled_iterations_match`."""
     model = vj.models.HeavyTop()
     x0 = model.initial_state()
     n_steps = 200
@@ -26,7 +29,7 @@ def test_concrete_run_equals_the_traced_run(h, needs_full_iterations):
     traced = jax.jit(lambda x: vj.simulate(model, x, h, n_steps))(x0)
     iterations = np.asarray(concrete.newton_iterations)
     assert (iterations.max() > 1 + vj.solvers.CHORD_ITERATIONS) == needs_full_iterations
-    np.testing.assert_array_equal(iterations, np.asarray(traced.newton_iterations))
+    assert_rolled_iterations_match(iterations, traced.newton_iterations)
     assert bool(concrete.succeeded)
     bound = 4 * 64 * EPS * np.sqrt(n_steps)
     for field in ("g", "xi", "M", "energy"):
@@ -45,7 +48,7 @@ def test_a_failing_run_reports_the_full_programs_failure():
     result = np.asarray(concrete.result)
     assert np.all(result[:12] == vj.solvers.SUCCESS) and result[12] == vj.solvers.MAX_ITERATIONS
     np.testing.assert_array_equal(result, np.asarray(traced.result))
-    np.testing.assert_array_equal(np.asarray(concrete.newton_iterations), np.asarray(traced.newton_iterations))
+    assert_rolled_iterations_match(concrete.newton_iterations, traced.newton_iterations)
 
 
 @pytest.mark.parametrize("h, needs_full_iterations", [(0.005, False), (0.02, True)])

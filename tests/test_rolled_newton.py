@@ -1,7 +1,7 @@
 """Newton's rolled iterations (``vi_jax.solvers._newton.rolled_iterations``, what a concrete
 ``vj.simulate``'s one-kernel loops trace): one loop over the evaluations takes the same iterates
-as the unrolled first steps and full iterations, holds each evaluation once, and lets the
-vehicle's order-2 loops be one kernel."""
+as the unrolled first steps and full iterations, stops at the first converged one, holds each
+evaluation once, and lets the vehicle's order-2 loops be one kernel."""
 
 import contextlib
 
@@ -43,19 +43,38 @@ def _solve(z0, max_iterations, rolled):
 @pytest.mark.parametrize("max_iterations", [0, 1, 2, 3, 4, 6, 20])
 @pytest.mark.parametrize("start", ["near", "far", "nan"])
 def test_rolled_iterations_take_the_same_iterates(max_iterations, start):
-    """Near the root the chord steps converge; far from it the full iterations run (and with few
-    allowed, fail); a NaN guess stays non-finite. Same iterations, result and residual, and the
-    same root to a few ulps (the same operations, compiled in another program)."""
+    """Near the root the last chord step converges; far from it the full iterations run (and
+    with few allowed, fail): the same iterations, result and residual, and the same root to a
+    few ulps (the same operations, compiled in another program). A NaN guess stays non-finite:
+    the rolled loop stops at its first iterate, the unrolled steps after the chord steps."""
     root = _solve(jnp.zeros(3), 20, rolled=False)[0]
     z0 = {"near": root + 1e-3, "far": jnp.array([3.0, -4.0, 5.0]), "nan": jnp.full(3, jnp.nan)}[start]
     z, stats = _solve(z0, max_iterations, rolled=False)
     z_rolled, stats_rolled = _solve(z0, max_iterations, rolled=True)
     if start == "far" and max_iterations == 20:
         assert int(stats.iterations) > 1 + vj.solvers.CHORD_ITERATIONS  # the full iterations ran
-    assert int(stats_rolled.iterations) == int(stats.iterations)
+    expected = 1 if start == "nan" else int(stats.iterations)
+    assert int(stats_rolled.iterations) == expected
     assert int(stats_rolled.result) == int(stats.result)
     np.testing.assert_allclose(stats_rolled.residual, stats.residual, rtol=1e-6, atol=1e-15)
     np.testing.assert_allclose(z_rolled, z, rtol=8 * np.finfo(np.float64).eps, atol=0)
+
+
+@pytest.mark.parametrize("distance, iterations", [(1e-8, 1), (1e-5, 2)])
+def test_rolled_iterations_stop_at_the_first_converged_iterate(distance, iterations):
+    """From a guess 1e-8 off the root one Newton step converges (its error ~1e-16), from 1e-5
+    one chord step after it (~1e-10 · 1e-5): the rolled loop stops there, where the unrolled
+    steps run all the chord steps before their one check. Both succeed, at the same root to
+    Newton's tolerance (the final correction follows either's last iterate)."""
+    root = _solve(jnp.zeros(3), 20, rolled=False)[0]
+    z0 = root + distance * jnp.array([1.0, -1.0, 1.0])
+    z, stats = _solve(z0, 20, rolled=False)
+    z_rolled, stats_rolled = _solve(z0, 20, rolled=True)
+    assert int(stats.iterations) == 1 + vj.solvers.CHORD_ITERATIONS
+    assert int(stats_rolled.iterations) == iterations
+    assert int(stats.result) == int(stats_rolled.result) == vj.solvers.SUCCESS
+    assert float(stats_rolled.residual) <= 1e-14
+    np.testing.assert_allclose(z_rolled, z, rtol=0, atol=1e-14 * float(_residual(z)[1]))
 
 
 def test_rolled_iterations_hold_each_evaluation_once():
