@@ -11,7 +11,7 @@ import pytest
 import vi_jax as vj
 from vi_jax.engine import _ensemble
 
-from newton_iterations import assert_rolled_iterations_match
+from newton_iterations import COMMON_PATH, assert_rolled_iterations_match
 
 EPS = np.finfo(np.float64).eps
 
@@ -28,7 +28,7 @@ def test_concrete_run_equals_the_traced_run(h, needs_full_iterations):
     concrete = vj.simulate(model, x0, h, n_steps)
     traced = jax.jit(lambda x: vj.simulate(model, x, h, n_steps))(x0)
     iterations = np.asarray(concrete.newton_iterations)
-    assert (iterations.max() > 1 + vj.solvers.CHORD_ITERATIONS) == needs_full_iterations
+    assert (iterations.max() > COMMON_PATH) == needs_full_iterations
     assert_rolled_iterations_match(iterations, traced.newton_iterations)
     assert bool(concrete.succeeded)
     bound = 4 * 64 * EPS * np.sqrt(n_steps)
@@ -69,10 +69,9 @@ def test_concrete_ensemble_equals_the_traced_ensemble(h, needs_full_iterations, 
     monkeypatch.setattr(_ensemble, "_run_loop", spy)
     concrete = vj.ensemble(model, states, h, n_steps, method="batched")
     traced = eqx.filter_jit(lambda s: vj.ensemble(model, s, h, n_steps, method="batched"))(states)
-    common = 1 + vj.solvers.CHORD_ITERATIONS
-    assert programs == [(common, True)] + ([(20, False)] if needs_full_iterations else [])
+    assert programs == [(COMMON_PATH, True)] + ([(20, False)] if needs_full_iterations else [])
     iterations = np.asarray(concrete.newton_iterations)
-    assert (iterations.max() > common) == needs_full_iterations
+    assert (iterations.max() > COMMON_PATH) == needs_full_iterations
     np.testing.assert_array_equal(iterations, np.asarray(traced.newton_iterations))
     assert bool(np.all(vj.member_converged(concrete)))
     bound = 4 * 64 * EPS * np.sqrt(n_steps)

@@ -130,8 +130,10 @@ def rolled_iterations():
     after the chord steps (the vehicle converges after the Newton step in 97% of its steps, the
     heavy top after one chord step). Against checking once, minima of 15–31 alternate timings of
     a concrete ``vj.simulate`` call (50,000 steps, its node diagnostics included) in a throwaway
-    A/B: the vehicle 0.86–0.87× at order 1, 0.92–0.94× at order 2, the heavy top at order 2
-    0.85–0.92×, the rigid body at order 1 0.68× (default XLA and the loop option). The first
+    A/B, default XLA and the loop option: the vehicle 0.86–0.87× at order 1, 0.92–0.94× at order 2,
+    the heavy top at order 2 0.85–0.92×, the rigid body at order 1 0.68× (loop option only); two
+    first runs of 15 timings read 1.35× (vehicle order 2) and 1.14× (heavy top, default XLA) by
+    their minima, 0.95× and 0.93× by their medians, and their reruns of 31 the figures above. The first
     point's residual is evaluated twice (alone and with the Jacobian):
     a conditional choosing between the two evaluations made the vehicle's concrete steps 1.33×
     the unrolled ones, against 1.10× so (minima of 11 alternate timings, in a throwaway A/B
