@@ -16,7 +16,7 @@ import vi_jax as vj
 from vi_jax.solvers import newton_root
 
 # The programs of a concrete DEP vj.simulate: the loop, then the node diagnostics.
-CONCRETE_DEP_PROGRAMS = ("jit(_loop_nodes)", "jit(_assemble_rows)")
+CONCRETE_DEP_PROGRAMS = ("jit(_loop_nodes)", "jit(_node_rows)")
 
 # In a fresh process: the programs that building each scene and its initial state asks for (each
 # eager operation on concrete values is one, 20–50 ms to compile on a 2-core machine).

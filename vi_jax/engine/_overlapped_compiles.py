@@ -42,8 +42,8 @@ def _compile(lowered):
 
 
 def run_chained(first, args, kwargs, second, second_args):
-    """``second(*second_args(first(*args, **kwargs)))``; ``first`` and ``second`` are
-    :func:`~._compile_options.cpu_options_jit` programs (``.lower``). On the first call of a
+    """``(out, second(*second_args(out)))`` with ``out = first(*args, **kwargs)``; ``first`` and
+    ``second`` are :func:`~._compile_options.cpu_options_jit` programs (``.lower``). On the first call of a
     signature, ``first`` compiles on a thread while ``second`` is traced and compiled for the
     avals of ``first``'s outputs."""
     key = _signature(first, second, args, kwargs)
@@ -57,4 +57,5 @@ def run_chained(first, args, kwargs, second, second_args):
         finally:
             compiling.join()
         _compiled.add(key)
-    return second(*second_args(first(*args, **kwargs)))
+    out = first(*args, **kwargs)
+    return out, second(*second_args(out))
