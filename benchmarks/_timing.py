@@ -22,16 +22,21 @@ def time_compiled(fn, *args, repeats=7):
     return first, statistics.median(samples), out
 
 
-def time_alternately(calls, repeats=7):
-    """Median seconds of each of ``calls`` (name → a call returning arrays), timed one after
-    another ``repeats`` times: peers in one process share the machine's load."""
+def alternate_samples(calls, repeats=7):
+    """Seconds of each of ``calls`` (name → a call returning arrays), a list per name, timed one
+    after another ``repeats`` times: peers in one process share the machine's load."""
     samples = {name: [] for name in calls}
     for _ in range(repeats):
         for name, call in calls.items():
             start = time.perf_counter()
             jax.block_until_ready(call())
             samples[name].append(time.perf_counter() - start)
-    return {name: statistics.median(s) for name, s in samples.items()}
+    return samples
+
+
+def time_alternately(calls, repeats=7):
+    """Median seconds of each of ``calls``, timed as :func:`alternate_samples` does."""
+    return {name: statistics.median(s) for name, s in alternate_samples(calls, repeats).items()}
 
 
 def cpu_per_wall(call, repeats=3):
