@@ -43,9 +43,9 @@ def _compile(lowered):
 
 def run_chained(first, args, kwargs, second, second_args):
     """``(out, second(*second_args(out)))`` with ``out = first(*args, **kwargs)``; ``first`` and
-    ``second`` are :func:`~._compile_options.cpu_options_jit` programs (``.lower``). On the first call of a
-    signature, ``first`` compiles on a thread while ``second`` is traced and compiled for the
-    avals of ``first``'s outputs."""
+    ``second`` are :func:`~._compile_options.cpu_options_jit` programs (``.lower``). On the first
+    call of a signature, ``first`` compiles on a thread while ``second`` is traced and compiled
+    for the avals of ``first``'s outputs."""
     key = _signature(first, second, args, kwargs)
     if key is not None and key not in _compiled:
         lowered = first.lower(*args, **kwargs)
