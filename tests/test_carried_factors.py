@@ -12,6 +12,7 @@ import pytest
 import vi_jax as vj
 from vi_jax.engine import _generated_step
 from vi_jax.engine._member_newton import MAX_PERIOD, next_periods
+from newton_iterations import COMMON_PATH, assert_first_converged_iterations_match
 
 EPS = np.finfo(np.float64).eps
 N_MEMBERS = 5
@@ -111,17 +112,19 @@ def test_members_equal_simulate_and_do_not_depend_on_each_other(name, carry_fact
 
 
 def test_carried_factors_skip_jacobians_and_keep_the_solution(carry_factors):
-    """Against a fresh Jacobian every step, on the vehicle at order 2: the same iterations
-    (one Newton or chord step and two chord steps every step, no fallback) and the same states
-    to round-off, so the carried factors converge as fast as fresh ones here."""
+    """Against a fresh Jacobian every step, on the vehicle at order 2: no fallback (one Newton
+    or chord step and at most two chord steps every step), the same iterations (but where a
+    residual lies within round-off of the tolerance) and the same states to round-off, so the
+    carried factors converge as fast as fresh ones here."""
     system = vj.models.UnderwaterVehicle()
     states = _states(system.initial_state(), N_MEMBERS, 2)
     runs = {}
     for forced in (False, True):
         carry_factors(forced)
         runs[forced] = vj.ensemble(system, states, 0.01, 300, order=2, save_every=10, method="batched")
-    np.testing.assert_array_equal(np.asarray(runs[True].newton_iterations)[:, 1:], 3)
-    np.testing.assert_array_equal(np.asarray(runs[False].newton_iterations)[:, 1:], 3)
+    carried, fresh = (np.asarray(runs[c].newton_iterations)[:, 1:] for c in (True, False))
+    assert np.all(carried <= COMMON_PATH) and np.all(fresh <= COMMON_PATH)
+    assert_first_converged_iterations_match(carried, fresh)  # the vehicle's chord steps are checked
     ours, theirs = np.asarray(runs[True].g), np.asarray(runs[False].g)
     assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(300)
 

@@ -62,8 +62,15 @@ def test_ensemble_equals_simulate_member_by_member(method):
     assert_members_equal(sol, refs, vmap_rtol if method == "vmap" else 1e-10)
     assert np.all(np.asarray(member_converged(sol)))
     assert np.max(np.asarray(sol.newton_residual)) <= 64 * np.finfo(float).eps
-    # Smooth members converge on the common path (Newton + 2 chord steps) at every step.
-    assert np.all(np.asarray(sol.newton_iterations)[:, 1:] == 3)
+    # Smooth members converge on the common path (Newton + 2 chord steps) at every step; the
+    # generated step (its chord steps checked on the vehicle) stops at the first converged
+    # iterate, as the concrete vj.simulate's rolled loop does, here after one chord step.
+    iterations = np.asarray(sol.newton_iterations)[:, 1:]
+    if method == "vmap":
+        assert np.all(iterations == 3)
+    else:
+        np.testing.assert_array_equal(iterations, np.stack([np.asarray(r.newton_iterations)[1:] for r in refs]))
+        assert np.all(iterations[:, 1:] < 3)
 
 
 def test_chunks_padding_and_conservation_per_member():

@@ -12,7 +12,7 @@ import pytest
 import vi_jax as vj
 from vi_jax.engine._components import components, componentwise, stacked
 from vi_jax.lie import SO3, SOn, LinearAction
-from newton_iterations import assert_rolled_iterations_match
+from newton_iterations import COMMON_PATH, assert_first_converged_iterations_match, assert_rolled_iterations_match, chords_checked
 from test_one_kernel import one_kernel_calls
 
 EPS = np.finfo(np.float64).eps
@@ -132,7 +132,8 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     tolerance 64ε (a random walk of √n such steps, with a factor 4 for its tail). A fresh
     Jacobian every step, as ``vj.simulate`` takes (carried factors: tests/test_carried_factors.py);
     the concrete run's rolled iterations stop at the first converged iterate
-    (:func:`assert_rolled_iterations_match`)."""
+    (:func:`assert_rolled_iterations_match`), as the ensemble's do where its chord steps are
+    checked (:func:`assert_first_converged_iterations_match`)."""
     from vi_jax.engine import _generated_step
 
     monkeypatch.setattr(_generated_step, "CARRY_FACTORS", False)
@@ -140,6 +141,7 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     system, x0, tau, order, h = _scene(name)
     n_steps, save_every = 120, 8
     states = _states(x0, 1)
+    match_iterations = assert_first_converged_iterations_match if chords_checked(system, states, h, tau, order) else assert_rolled_iterations_match
     sol = vj.ensemble(system, states, h, n_steps, tau=tau, order=order, save_every=save_every, method="batched")
     rtol = 4 * 64 * EPS * np.sqrt(n_steps)
     for k in (0, N_MEMBERS - 1):
@@ -148,7 +150,7 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
             ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
             assert ours.shape == theirs.shape, field
             assert np.max(np.abs(ours - theirs)) <= rtol * max(np.max(np.abs(theirs)), 1.0), (field, np.max(np.abs(ours - theirs)))
-        assert_rolled_iterations_match(ref.newton_iterations, sol.newton_iterations[k])
+        match_iterations(ref.newton_iterations, sol.newton_iterations[k])
     kn = np.asarray(sol.kelvin_noether).reshape(N_MEMBERS, n_steps // save_every + 1, -1)
     scale = np.asarray(sol.kelvin_noether_scale).reshape(N_MEMBERS, -1).max(axis=1)
     assert np.all(np.max(np.abs(kn - kn[:, :1]), axis=(1, 2)) <= 1e-12 * scale)
@@ -257,9 +259,13 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
     for platform in ("cpu", "gpu"):
         monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None, p=platform: p)
         plans[platform] = vj.ensemble(system, states, h, 120, order=order, save_every=40, method="batched")
-    for a, b in zip(jax.tree.leaves(plans["gpu"]), jax.tree.leaves(plans["cpu"])):
+    gpu, cpu = (eqx.tree_at(lambda s: s.newton_iterations, plans[p], None) for p in ("gpu", "cpu"))
+    for a, b in zip(jax.tree.leaves(gpu), jax.tree.leaves(cpu)):
         a, b = np.asarray(a), np.asarray(b)
         assert np.max(np.abs(a - b)) <= 1e-12 * max(np.max(np.abs(b)), 1.0)
+    # The CPU plan checks this scene's chord steps; the accelerator plan runs them all.
+    assert np.all(np.asarray(plans["cpu"].newton_iterations) <= np.asarray(plans["gpu"].newton_iterations))
+    assert np.all(np.asarray(plans["gpu"].newton_iterations)[:, 1:] >= COMMON_PATH)
 
 
 def _accelerator_plan_runs(monkeypatch, run, speculative):
@@ -416,7 +422,7 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
             for field in ("g", "xi", "nu", "M", "P", "result"):
                 ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
                 assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * max(np.max(np.abs(theirs)), 1.0), field
-            assert_rolled_iterations_match(ref.newton_iterations, sol.newton_iterations[k])
+            assert_first_converged_iterations_match(ref.newton_iterations, sol.newton_iterations[k])  # checked chord steps
     jax.clear_caches()
 
     def block_of(order):  # traced only

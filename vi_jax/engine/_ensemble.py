@@ -30,9 +30,11 @@ Speeds: ``python benchmarks/ensemble_vs_vmap.py [--fast-loops]``.
 
 Newton in every path follows ``vj.simulate`` (one Newton step, two chord steps, a check, a final
 correction; the generated step on CPU may start from factors carried from an earlier step where
-its Jacobian is costly): the fallback iterations run only while some member has not converged,
-and only the unconverged members are updated, so per-member results do not depend on the other
-members (nor on how the ensemble is sharded). Per-member convergence is in ``Solution.newton_iterations``,
+its Jacobian is costly, and where its residual is costly checks each chord iterate, each member
+stopping at its first converged one as a concrete ``vj.simulate`` does): the chord steps so
+checked and the fallback iterations run only while some member has not converged, and only the
+unconverged members are updated, so per-member results do not depend on the other members (nor
+on how the ensemble is sharded). Per-member convergence is in ``Solution.newton_iterations``,
 ``newton_residual`` and ``result`` (shape (members, nodes)); :func:`member_converged` sums it up.
 
 Several devices: pass ``mesh`` (e.g. ``jax.make_mesh((jax.device_count(),), ("members",))``);

@@ -11,7 +11,9 @@ members, so XLA fuses a whole Newton iteration into one loop over the members. N
 Newton step, two chord steps, a check, masked fallback iterations while a member has not
 converged, a final correction, implicit-function gradients; on the CPU plan, where the
 Jacobian costs most, the first step may be a chord step on factors carried from an earlier step
-(:func:`make_step`, :func:`~._member_newton.next_periods`). On the CPU plan a single-stage step
+(:func:`make_step`, :func:`~._member_newton.next_periods`), and where the residual costs most,
+each chord step runs only while some member has not converged, by those members alone (each
+stops at its first converged iterate, as ``vj.simulate``'s rolled loop). On the CPU plan a single-stage step
 (orders 1, 2) starts Newton from the extrapolation 2ξ_k − ξ_{k−1}, as ``vj.simulate`` does
 (:func:`_extrapolated`); the accelerator plan starts from ξ_k and runs the step speculatively
 (:func:`_speculative`). On the CPU plan the member loops are one kernel
@@ -24,11 +26,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..discrete._composition import composition_coefficients
 from ..discrete._dep import StepState, StepStats, _split, discrete_momenta, legendre_initial_state
 from ..solvers import CHORD_ITERATIONS, SINGULAR_DIFFERENCE_MAP, SUCCESS
 from ._advance import extrapolation, no_previous
 from ._explicit_unknowns import dep_residual
 from ._simulate import assemble
+from ..lie import difference_map
 from ..lie._small import batched_products
 from ._components import componentwise, components, from_member_arrays, member_arrays
 from .._one_kernel import one_kernel
@@ -67,6 +71,16 @@ FIELDS = ("g", "q", "M", "P", "z")
 # the rigid body and the vehicle at order 1 (2.1), whose Jacobian costs less than carrying.
 CARRY_FACTORS = None
 CARRY_COST = 4
+# Newton's chord steps checked (make_step, newton_members' checked_chords): None checks them
+# where the residual costs at least CHECK_COST operations per member (scene_operations),
+# True / False everywhere / nowhere (the benchmark's switch). A checked chord step is skipped
+# when every member of the chunk has converged, and masked per member otherwise: the masks cost
+# about 10 operations a member whether or not a step is skipped. python
+# benchmarks/checked_chords.py: 1.2x faster on the vehicle at orders 1 and 2, whose Newton step
+# mostly converges; 0.87x on the heavy top at order 1 (134 operations), whose members take both
+# chord steps at h = 0.01, 0.96x at order 2 (453); the rigid body (92, 152) 1.0x.
+CHECK_CHORDS = None
+CHECK_COST = 200
 # Newton's first guess in single-stage steps: the extrapolation 2ξ_k − ξ_{k−1} (True) or ξ_k
 # (False, the benchmark's switch): _extrapolated.
 PREDICT = True
@@ -142,13 +156,27 @@ def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
     return with_jacobian / residual
 
 
-def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False):
+def scene_operations(system, x0, h, tau="cayley", order=1):
+    """Operations per member in the jaxprs of the residual and of the residual with its Jacobian
+    (what ``CHECK_COST`` and ``CARRY_COST`` measure) for an ensemble of ``x0`` (members first)
+    under one ``system``."""
+    n_members = jax.tree.leaves(x0)[0].shape[0]
+    axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, x0))
+    params, static, _, layout, carry = _start(system, x0, axes, jnp.asarray(h).dtype, n_members)
+    rule, _ = composition_coefficients(order)
+    return _residual_operations(static, params, difference_map(tau), rule, n_members, layout, carry, jnp.asarray(h))
+
+
+def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False,
+              check_chords=False):
     """``step((carry, extra), h) -> ((carry, extra), (iterations, residual, result))`` on flat
     member arrays; ``boundaries``: the fusion boundaries of :func:`~._member_newton.fusion_boundary` at the residuals,
     the Jacobian and the values the step marks as shared (the CPU plan; a GPU fuses without
     them and would pay a conditional per boundary). ``carry_factors``: ``extra`` holds each
     member's LU factors, refresh period and its ceiling, and the step count (:func:`next_periods`); else ``()``
-    and every step takes a fresh Jacobian. ``step.start(carry)`` is the first ``extra``."""
+    and every step takes a fresh Jacobian. ``check_chords`` (with ``boundaries``): each chord
+    step only while some member has not converged (``newton_members``' ``checked_chords``).
+    ``step.start(carry)`` is the first ``extra``."""
     equations, update = _equations_of(static, params, tau, rule, n_members, layout, boundaries)
 
     def start(carry):
@@ -165,7 +193,8 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
         carry, extra = state
         dtype = carry[2][0].dtype
         (g, q, z, n, a, hc), boundary, fn, fn_jac = equations(carry, h)
-        options = dict(rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac)
+        checked = boundary if boundaries and check_chords else None
+        options = dict(rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac, checked_chords=checked)
         if carry_factors:
             factors, (period, ceiling), count = extra
             refresh = count % period == 0
@@ -296,14 +325,13 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
     # Measured on the CPU plan only: a GPU's whole batch would take a Jacobian whenever one
     # member does.
-    if CARRY_FACTORS is None:
-        carried = boundaries and jacobian_cost(static, params, tau, rule, n_members, layout, carry0, h) >= CARRY_COST
-    else:
-        carried = CARRY_FACTORS
+    costs = _residual_operations(static, params, tau, rule, n_members, layout, carry0, h) if boundaries else (0, 0)
+    carried = boundaries and costs[1] >= CARRY_COST * costs[0] if CARRY_FACTORS is None else CARRY_FACTORS
+    checked = boundaries and costs[0] >= CHECK_COST if CHECK_CHORDS is None else CHECK_CHORDS
     predict = (PREDICT if boundaries else PREDICT_ON_ACCELERATORS) and len(gammas) == 1
 
     def one_step_of(params, h, max_iterations):
-        step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried)
+        step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried, checked)
         one_step = _one_step(step, gammas, h)
         return (_extrapolated(one_step) if predict else one_step), step.start
 
