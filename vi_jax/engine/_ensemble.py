@@ -169,8 +169,8 @@ def ensemble(
     (n_members,) = sizes
     if n_members < 1:
         raise ValueError("x0_axes, system_axes: expected at least one member, got 0")
-    h, n_steps, save_every, tau_map, order = validate_scheme(
-        take_member(system, sys_axes, 0), take_member(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order
+    h, n_steps, save_every, tau_map, order = validate_scheme(  # the group membership of every member below
+        take_member(system, sys_axes, 0), take_member(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order, on_group=False
     )
     val.check_finite("system parameters", val.numeric_leaves(system))
     val.check_finite("x0", x0)

@@ -1,6 +1,6 @@
-"""An ensemble's members in equal groups for one compiled program: sliced on the host (the last
-group padded with copies of its last member), run one after another (the progress bar) or at
-the same time, one group per CPU core, and joined.
+"""An ensemble's members in equal groups for one compiled program (the last group padded with
+copies of its last member): sliced on the host and run one after another (the progress bar), or
+sliced by one program and run at the same time, one group per CPU core; then joined.
 
 Groups at the same time (:func:`on_cores`): XLA:CPU runs a program's loops on one core (it
 splits a fused operation over threads only when the operation is large, and none of a light
@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._member_split import pad_members
+from ._member_split import batched_leaves, pad_members
 
 MIN_GROUP = 64  # members per group at least: the vectorised paths lose throughput on fewer
 # Steps per saved node at least for groups at the same time: a run saving every node is bound by
@@ -60,7 +60,8 @@ def on_cores(program, dynamic, axes, n_members, steps_per_node, *args, **kwargs)
     if n_groups < 2:
         return program(dynamic, *args, n_members=n_members, **kwargs)
     size = -(-n_members // n_groups)
-    groups = [member_group(dynamic, axes, start, size) for start in range(0, n_members, size)]
+    leaves, rebuild = batched_leaves(dynamic, axes)
+    groups = [rebuild(group) for group in _split(leaves, size, n_groups)]
     compiled = program.lower(groups[0], *args, n_members=size, **kwargs).compile()
 
     def run(group):
@@ -68,6 +69,16 @@ def on_cores(program, dynamic, axes, n_members, steps_per_node, *args, **kwargs)
 
     parts = list(_workers(len(groups)).map(run, groups))
     return _joined_on_device(parts, n_members)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _split(leaves, size, n_groups):
+    """Per group, its members of each leaf (the last group padded), sliced by one program. A
+    slice and a transfer per leaf and group, with member 0 sliced leaf by leaf for the input
+    checks (``take_member``), cost 0.7-0.9 ms more per concrete call of 1024 vehicle members
+    (``python benchmarks/ensemble_call_overhead.py [--fast-loops]``)."""
+    padded = [pad_members(x, size * n_groups) for x in leaves]
+    return [[x[k * size : (k + 1) * size] for x in padded] for k in range(n_groups)]
 
 
 @functools.partial(jax.jit, static_argnums=1)

@@ -2,6 +2,8 @@
 CPU plan of the batched kernels) and padding to a multiple of a group size (devices, progress
 groups)."""
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -82,5 +84,30 @@ def member_counts(name, tree, axes):
     return counts
 
 
+def batched_leaves(tree, axes):
+    """The batched leaves of ``tree`` (axis 0 in ``axes``) and ``rebuild(new leaves)``: ``tree``
+    with them replaced."""
+    is_none = lambda x: x is None  # noqa: E731
+    flat_axes = jax.tree.leaves(axes, is_leaf=is_none)
+    leaves, treedef = jax.tree.flatten(tree, is_leaf=is_none)
+    batched = [i for i, ax in enumerate(flat_axes) if ax is not None and leaves[i] is not None]
+
+    def rebuild(new):
+        out = list(leaves)
+        for i, x in zip(batched, new):
+            out[i] = x
+        return jax.tree.unflatten(treedef, out)
+
+    return [leaves[i] for i in batched], rebuild
+
+
 def take_member(tree, axes, index):
-    return jax.tree.map(lambda ax, x: x if ax is None else x[index], axes, tree, is_leaf=lambda x: x is None)
+    """Member ``index`` of the batched leaves of ``tree``, sliced by one program (an eager slice
+    per leaf dispatches a program each)."""
+    leaves, rebuild = batched_leaves(tree, axes)
+    return rebuild(_members_at(leaves, index))
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _members_at(leaves, index):
+    return [x[index] for x in leaves]

@@ -84,8 +84,9 @@ def node_invariants(system, g, q, M, P, xi, nu):
     return energy, kn, kn_scale
 
 
-def validate_inputs(system, x0, h, n_steps, save_every):
-    """Checks every scheme makes: the scene, x0 on the group and finite, h > 0, step counts."""
+def validate_inputs(system, x0, h, n_steps, save_every, on_group=True):
+    """Checks every scheme makes: the scene, x0 on the group and finite, h > 0, step counts
+    (``on_group=False``: x0.g's membership left to the caller, e.g. checked for every member)."""
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"system: expected a vi_jax system (AbstractSystem), got {type(system).__name__}")
     if not isinstance(x0, State):
@@ -96,7 +97,8 @@ def validate_inputs(system, x0, h, n_steps, save_every):
     xi0 = val.as_array("x0.xi", x0.xi, (r,))
     val.check_finite("x0.g", g0)
     val.check_finite("x0.xi", xi0)
-    val.check_on_group("x0.g", G, g0)
+    if on_group:
+        val.check_on_group("x0.g", G, g0)
     if system.has_additional:
         if x0.q is None or x0.qdot is None:
             raise ValueError("x0: this system has additional dynamics; expected x0.q and x0.qdot, got None")
