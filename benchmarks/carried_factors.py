@@ -2,7 +2,7 @@
 Jacobian every step: ``vj.ensemble`` (1024 members × 1000 steps, final node saved, Cayley,
 the CPU plan), both variants compiled in one process and timed alternately (median of 7 runs
 each), with the Newton iterations of both and the cost of the residual with its Jacobian in
-residuals (``jacobian_cost``). Decided ``CARRY_COST``: the scenes whose factors are carried.
+residuals (``scene_operations``). Decided ``CARRY_COST``: the scenes whose factors are carried.
 
     python benchmarks/carried_factors.py [--fast-loops]
 """
@@ -22,9 +22,7 @@ import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
-from vi_jax.discrete import composition_coefficients  # noqa: E402
 from vi_jax.engine import _generated_step  # noqa: E402
-from vi_jax.lie import difference_map  # noqa: E402
 
 MEMBERS, STEPS, REPEATS = 1024, 1000, 7
 CASES = [("rigid_body", vj.models.RigidBody, 0.01, 2), ("heavy_top", vj.models.HeavyTop, 0.005, 1),
@@ -44,10 +42,8 @@ def compiled(model, states, h, order, carry):
 
 
 def jacobian_cost(model, states, h, order):
-    axes = (jax.tree.map(lambda _: None, model), jax.tree.map(lambda _: 0, states))
-    params, static, _, layout, carry0 = _generated_step._start(model, states, axes, jnp.float64, MEMBERS)
-    rule, _ = composition_coefficients(order)
-    return _generated_step.jacobian_cost(static, params, difference_map("cayley"), rule, MEMBERS, layout, carry0, h)
+    residual, with_jacobian = _generated_step.scene_operations(model, states, h, order=order)
+    return with_jacobian / residual
 
 
 def main():

@@ -51,16 +51,11 @@ def carry_factors(monkeypatch):
 def test_factors_are_carried_where_the_jacobian_costs_most():
     """The default carries the factors of the vehicle at order 2 (its residual's Jacobian costs
     about 5 residuals), not of the rigid body (about 2)."""
-    from vi_jax.discrete import composition_coefficients
-    from vi_jax.lie import difference_map
-
     costs = {}
     for name, system, order in (("vehicle", vj.models.UnderwaterVehicle(), 2), ("rigid body", vj.models.RigidBody(), 2)):
         states = _states(system.initial_state(), N_MEMBERS, 0)
-        axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, states))
-        params, static, _, layout, carry = _generated_step._start(system, states, axes, jnp.float64, N_MEMBERS)
-        rule, _ = composition_coefficients(order)
-        costs[name] = _generated_step.jacobian_cost(static, params, difference_map("cayley"), rule, N_MEMBERS, layout, carry, jnp.asarray(0.01))
+        residual, with_jacobian = _generated_step.scene_operations(system, states, 0.01, "cayley", order)
+        costs[name] = with_jacobian / residual
     assert costs["vehicle"] >= _generated_step.CARRY_COST > costs["rigid body"] > 1
 
 

@@ -65,7 +65,7 @@ def _pieces(static, tau, rule):
 
 FIELDS = ("g", "q", "M", "P", "z")
 # Newton's factors carried from step to step (make_step): None carries them where the residual
-# with its Jacobian costs at least CARRY_COST residuals (jacobian_cost), True / False everywhere /
+# with its Jacobian costs at least CARRY_COST residuals (scene_operations), True / False everywhere /
 # nowhere (the benchmark's switch). python benchmarks/carried_factors.py: 1.84x faster on the
 # vehicle at order 2 and 1.78x at order 4 (cost 5.1); 0.84-0.96x on the heavy top (3.4, 2.2),
 # the rigid body and the vehicle at order 1 (2.1), whose Jacobian costs less than carrying.
@@ -148,12 +148,6 @@ def _residual_operations(static, params, tau, rule, n_members, layout, carry, h)
     equations, _ = _equations_of(static, params, tau, rule, n_members, layout, False)
     _, _, fn, fn_jac = equations(carry, h)
     return tuple(_member_operations(jax.make_jaxpr(f)(carry[4]).jaxpr, n_members) for f in (fn, fn_jac))
-
-
-def jacobian_cost(static, params, tau, rule, n_members, layout, carry, h):
-    """The residual with its Jacobian, in residuals: operations per member in their jaxprs."""
-    residual, with_jacobian = _residual_operations(static, params, tau, rule, n_members, layout, carry, h)
-    return with_jacobian / residual
 
 
 def scene_operations(system, x0, h, tau="cayley", order=1):

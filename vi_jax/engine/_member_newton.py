@@ -292,6 +292,11 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             return _finish(jnp.ones(jnp.shape(scale), jnp.int32), z, r, scale)
         n_chord = max(min(chord_iterations, max_iterations - 1), 0)
 
+        def chord_step(state):
+            i, z, r, scale = state
+            z = _axpy(-1.0, lu_solve(factors, r), z)
+            return (i + 1, z) + tuple(fn(z))
+
         def checked_chord_step(state):
             """A chord step by the members not converged yet; their iterates pass the boundary."""
             i, z, r, scale = state
@@ -299,22 +304,17 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             z = checked_chords(_where(active, _axpy(-1.0, lu_solve(factors, r), z), z))
             return (i + active.astype(i.dtype), z) + _where(active, tuple(fn(z)), (r, scale))
 
-        z = _axpy(-1.0, lu_solve(factors, r), z)  # the Newton step
-        r, scale = fn(z)
         early = jnp.zeros(jnp.shape(scale), bool)
-        state = (jnp.ones(jnp.shape(scale), jnp.int32), z, r, scale)
+        state = chord_step((jnp.zeros(jnp.shape(scale), jnp.int32), z, r, scale))  # the Newton step
         for k in range(n_chord):
             if k == n_chord - 1:
                 early = norm(state[2]) <= EARLY * rtol * state[3]
             if checked_chords is None:
-                z = _axpy(-1.0, lu_solve(factors, state[2]), state[1])
-                state = (state[0], z) + tuple(fn(z))
+                state = chord_step(state)
             else:
                 going = jnp.any(not_converged(*state[2:]))
                 state = jax.lax.cond(going, checked_chord_step, lambda s: s, state)
         i, z, r, scale = state
-        if checked_chords is None:
-            i = jnp.full(jnp.shape(scale), 1 + n_chord, jnp.int32)
 
         def active_of(i, r, scale):
             return (i < max_iterations) & not_converged(r, scale) & finite(r)
