@@ -1,10 +1,11 @@
 """Fixed cost of a concrete ``vj.ensemble`` call (the host work around its compiled programs):
 the vehicle, 1024 members, h = 0.01, float64, the final node saved, at 4 and at 1000 steps, one
-group of members per core. Peer: the same call with the host work of the version before
-(``a42d569``): member 0 sliced by one program per leaf for the input checks, which also checked
-its group membership before the check of every member, and each group's members sliced and
-padded on the host, one transfer per leaf and group. Both timed in one process, alternately
-(41 timings each).
+group of members per core. Peers: the same call with the groups' program lowered and compiled
+anew at every call, as before programs were kept (``vi_jax/engine/_kept_programs.py``), and with
+that and the host work of the version before it too (``a42d569``): member 0 sliced by one
+program per leaf for the input checks, which also checked its group membership before the check
+of every member, and each group's members sliced and padded on the host, one transfer per leaf
+and group. All timed in one process, alternately (41 timings each).
 
     python benchmarks/ensemble_call_overhead.py [--fast-loops]
 """
@@ -49,34 +50,43 @@ def per_leaf_groups(program, dynamic, axes, n_members, steps_per_node, *args, **
     return _member_groups._joined_on_device(parts, n_members)
 
 
+def compiled_each_call(program, *args, **kwargs):
+    return program.lower(*args, **kwargs).compile()
+
+
 def main():
-    current = dict(take_member=_ensemble.take_member, on_cores=_ensemble.on_cores, validate_scheme=_ensemble.validate_scheme)
-    before = dict(take_member=per_leaf_member, on_cores=per_leaf_groups,
-                  validate_scheme=lambda *args, on_group: current["validate_scheme"](*args, on_group=True))
+    current = dict(take_member=_ensemble.take_member, on_cores=_ensemble.on_cores, validate_scheme=_ensemble.validate_scheme,
+                   compiled_program=_member_groups.compiled_program)
+    before = dict(current, compiled_program=compiled_each_call)
+    per_leaf = dict(take_member=per_leaf_member, on_cores=per_leaf_groups, compiled_program=compiled_each_call,
+                    validate_scheme=lambda *args, on_group: current["validate_scheme"](*args, on_group=True))
+    modules = dict(take_member=_ensemble, on_cores=_ensemble, validate_scheme=_ensemble, compiled_program=_member_groups)
     model = vj.models.UnderwaterVehicle()
     states = perturbed_states(model.initial_state(), MEMBERS)
     assert _member_groups.cores() >= 2, "one group per core needs two cores"
     rows = []
     for steps in (4, 1000):
-        samples = {"this version": [], "per-leaf host work (before)": []}
-        variants = dict(zip(samples, (current, before)))
+        samples = {"this version": [], "compiled each call (before)": [], "per-leaf host work (two before)": []}
+        variants = dict(zip(samples, (current, before, per_leaf)))
         for _ in range(1 + REPEATS):  # the first round compiles
             for name, variant in variants.items():
                 for key, fn in variant.items():
-                    setattr(_ensemble, key, fn)
+                    setattr(modules[key], key, fn)
                 start = time.perf_counter()
                 jax.block_until_ready(vj.ensemble(model, states, 0.01, steps, save_every=steps, throw=False).q)
                 samples[name].append(time.perf_counter() - start)
         for key, fn in current.items():
-            setattr(_ensemble, key, fn)
+            setattr(modules[key], key, fn)
         medians = {k: statistics.median(v[1:]) for k, v in samples.items()}
         fastest = {k: min(v[1:]) for k, v in samples.items()}
-        (ours, theirs) = samples
+        ours, *peers = samples
         rows.append(dict(steps=steps, median_ms={k: 1e3 * v for k, v in medians.items()}, fastest_ms={k: 1e3 * v for k, v in fastest.items()},
-                         saved_ms_median=1e3 * (medians[theirs] - medians[ours]), saved_ms_fastest=1e3 * (fastest[theirs] - fastest[ours])))
-        print(f"{steps:5d} steps: this version {1e3 * medians[ours]:.2f} ms (fastest {1e3 * fastest[ours]:.2f}), before "
-              f"{1e3 * medians[theirs]:.2f} ms ({1e3 * fastest[theirs]:.2f}): {1e3 * (medians[theirs] - medians[ours]):.2f} ms less "
-              f"by medians, {1e3 * (fastest[theirs] - fastest[ours]):.2f} by the fastest", flush=True)
+                         saved_ms_median={k: 1e3 * (medians[k] - medians[ours]) for k in peers},
+                         saved_ms_fastest={k: 1e3 * (fastest[k] - fastest[ours]) for k in peers}))
+        print(f"{steps:5d} steps: this version {1e3 * medians[ours]:.2f} ms (fastest {1e3 * fastest[ours]:.2f})", flush=True)
+        for k in peers:
+            print(f"             {k}: {1e3 * medians[k]:.2f} ms ({1e3 * fastest[k]:.2f}): {1e3 * (medians[k] - medians[ours]):.2f} ms "
+                  f"less by medians, {1e3 * (fastest[k] - fastest[ours]):.2f} by the fastest", flush=True)
     write_config_json("ensemble_call_overhead", ARGS.fast_loops, members=MEMBERS, rows=rows)
 
 

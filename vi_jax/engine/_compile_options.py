@@ -87,7 +87,7 @@ def cpu_options_jit(fn, options: dict, *, forward_only: bool = True):
     the program is traced without Newton's implicit-function rule, a program of its own (a
     ``jit`` under a transformation traces ``fn`` with the rule); ``forward_only=False`` keeps
     the rule there too, for a program that differentiates inside itself (the fit's Jacobian).
-    ``.lower`` lowers the program of the choice."""
+    ``.lower`` lowers the program of the choice; ``.chosen()`` is that program."""
     programs = {}
 
     def chosen():
@@ -103,6 +103,7 @@ def cpu_options_jit(fn, options: dict, *, forward_only: bool = True):
         return chosen()(*args, **kwargs)
 
     program.lower = lambda *args, **kwargs: chosen().lower(*args, **kwargs)
+    program.chosen = chosen
     return program
 
 

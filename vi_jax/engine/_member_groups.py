@@ -4,9 +4,10 @@ sliced by one program and run at the same time, one group per CPU core; then joi
 
 Groups at the same time (:func:`on_cores`): XLA:CPU runs a program's loops on one core (it
 splits a fused operation over threads only when the operation is large, and none of a light
-step's is), but runs the programs that different host threads launch side by side. Each group
-is traced and compiled once, in the calling thread (so the caller's configuration contexts —
-precision, x64, default device — hold), and run from a worker thread.
+step's is), but runs the programs that different host threads launch side by side. The groups'
+program is compiled in the calling thread (so the caller's configuration contexts — precision,
+x64, default device — hold), kept for the next call of its signature
+(:func:`~._kept_programs.compiled_program`), and run from worker threads.
 """
 
 import functools
@@ -17,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._kept_programs import compiled_program
 from ._member_split import batched_leaves, pad_members
 
 MIN_GROUP = 64  # members per group at least: the vectorised paths lose throughput on fewer
@@ -62,7 +64,7 @@ def on_cores(program, dynamic, axes, n_members, steps_per_node, *args, **kwargs)
     size = -(-n_members // n_groups)
     leaves, rebuild = batched_leaves(dynamic, axes)
     groups = [rebuild(group) for group in _split(leaves, size, n_groups)]
-    compiled = program.lower(groups[0], *args, n_members=size, **kwargs).compile()
+    compiled = compiled_program(program, groups[0], *args, n_members=size, **kwargs)
 
     def run(group):
         return jax.block_until_ready(compiled(group, *args, n_members=size, **kwargs))
