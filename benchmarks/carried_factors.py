@@ -21,7 +21,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import perturbed_states  # noqa: E402
+from _generated import compiled_with_switches, perturbed_states  # noqa: E402
 from vi_jax.engine import _generated_step  # noqa: E402
 
 MEMBERS, STEPS, REPEATS = 1024, 1000, 7
@@ -33,11 +33,7 @@ CASES = [("rigid_body", vj.models.RigidBody, 0.01, 2), ("heavy_top", vj.models.H
 def compiled(model, states, h, order, carry):
     """The run compiled ahead of time with ``CARRY_FACTORS = carry`` (caches cleared first: the
     switch is read at trace time), its worst Newton iterations and final attitudes."""
-    jax.clear_caches()
-    _generated_step.CARRY_FACTORS = carry
-    run = jax.jit(lambda m, s, h: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False))
-    run = run.lower(model, states, h).compile()
-    sol = jax.block_until_ready(run(model, states, h))
+    run, sol = compiled_with_switches(model, states, h, order, STEPS, CARRY_FACTORS=carry)
     return run, int(np.max(np.asarray(sol.newton_iterations)[:, 1:])), np.asarray(sol.g[:, -1])
 
 

@@ -25,7 +25,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import perturbed_states  # noqa: E402
+from _generated import compiled_with_switches, perturbed_states  # noqa: E402
 from vi_jax.engine import _generated_step  # noqa: E402
 
 MEMBERS, STEPS, REPEATS, H = 1024, 1000, 9, 0.01
@@ -36,11 +36,7 @@ CASES = [("rigid_body", vj.models.RigidBody, 1), ("rigid_body", vj.models.RigidB
 def compiled(model, states, h, order, checked):
     """The run compiled ahead of time with ``CHECK_CHORDS = checked`` (caches cleared first: the
     switch is read at trace time), its mean Newton iterations per node and final attitudes."""
-    jax.clear_caches()
-    _generated_step.CHECK_CHORDS = checked
-    run = jax.jit(lambda m, s, h: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False))
-    run = run.lower(model, states, h).compile()
-    sol = jax.block_until_ready(run(model, states, h))
+    run, sol = compiled_with_switches(model, states, h, order, STEPS, CHECK_CHORDS=checked)
     nodes = vj.ensemble(model, states, h, 200, order=order, save_every=10, method="batched", throw=False)
     return run, float(np.mean(np.asarray(nodes.newton_iterations)[:, 1:])), np.asarray(sol.g[:, -1])
 

@@ -29,7 +29,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
-from _generated import perturbed_states  # noqa: E402
+from _generated import compiled_with_switches, perturbed_states  # noqa: E402
 from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
 
 MEMBERS, STEPS, REPEATS = 1024, 1000, 7
@@ -57,11 +57,8 @@ def compiled(model, states, h, order, predict):
     """The run compiled ahead of time with the extrapolated guess or not (``PREDICT``, or
     ``PREDICT_ON_ACCELERATORS`` with ``--whole-batch``; caches cleared first: the switches are
     read at trace time), its fallback share and final attitudes."""
-    jax.clear_caches()
-    _generated_step.PREDICT = _generated_step.PREDICT_ON_ACCELERATORS = predict
-    run = jax.jit(lambda m, s, h: vj.ensemble(m, s, h, STEPS, order=order, save_every=STEPS, method="batched", throw=False))
-    run = run.lower(model, states, h).compile()
-    g = np.asarray(jax.block_until_ready(run(model, states, h)).g[:, -1])
+    run, sol = compiled_with_switches(model, states, h, order, STEPS, PREDICT=predict, PREDICT_ON_ACCELERATORS=predict)
+    g = np.asarray(sol.g[:, -1])
     return run, fallback_share(model, float(h), order), g
 
 
