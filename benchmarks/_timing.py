@@ -3,6 +3,8 @@ median of repeats), compile time reported separately."""
 
 import json
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -82,3 +84,20 @@ def write_config_json(name, fast_loops, path=None, **payload):
     config = "enable_fast_cpu_loops()" if fast_loops else "default XLA flags"
     path = path or Path(__file__).resolve().parent / "results" / f"{name}{suffix}.json"
     write_json(path, dict(config=config, **payload))
+
+
+def fresh_process_runs(child, cases, repeats):
+    """``child`` (a Python script printing ``JSON {...}``) run in a fresh process per case and
+    repeat, the cases in turn; ``cases``: {key: its command-line arguments}. Returns {key: the
+    JSON dicts of its runs}."""
+    runs = {key: [] for key in cases}
+    for _ in range(repeats):
+        for key, args in cases.items():
+            out = subprocess.run([sys.executable, "-c", child, *map(str, args)], capture_output=True, text=True, check=True).stdout
+            runs[key].append(json.loads(out.split("JSON ", 1)[1]))
+    return runs
+
+
+def medians(runs, keys):
+    """{key: the median of the runs' values}."""
+    return {key: statistics.median(r[key] for r in runs) for key in keys}

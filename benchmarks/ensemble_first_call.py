@@ -10,12 +10,7 @@ both programs).
     python benchmarks/ensemble_first_call.py [--fast-loops]
 """
 
-import json
-import statistics
-import subprocess
-import sys
-
-from _timing import fast_loops_from_argv, write_config_json
+from _timing import fast_loops_from_argv, fresh_process_runs, medians, write_config_json
 
 CASES = [("UnderwaterVehicle", 0.01), ("HeavyTop", 0.01), ("HeavyTop", 0.02)]
 PLANS = ("optimistic", "full program only")
@@ -52,19 +47,12 @@ print("JSON " + json.dumps(dict(first_call_s=times[0], second_call_s=times[1], b
 
 def main():
     fast_loops = fast_loops_from_argv()
-    samples = {(scene, h, plan): [] for scene, h in CASES for plan in PLANS}
-    for _ in range(REPEATS):
-        for scene, h in CASES:
-            for plan in PLANS:
-                args = [scene, str(h), plan, str(MEMBERS), str(STEPS), str(ORDER)]
-                out = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True, check=True).stdout
-                samples[(scene, h, plan)].append(json.loads(out.split("JSON ", 1)[1]))
+    cases = {(scene, h, plan): [scene, h, plan, MEMBERS, STEPS, ORDER] for scene, h in CASES for plan in PLANS}
     rows = []
-    for (scene, h, plan), runs in samples.items():
+    for (scene, h, plan), runs in fresh_process_runs(CHILD, cases, REPEATS).items():
         row = dict(scene=scene, h=h, plan=plan, members=MEMBERS, steps=STEPS, order=ORDER,
                    fell_back=runs[0]["fell_back"], repeats=REPEATS)
-        for key in ("first_call_s", "second_call_s", "backend_compile_s"):
-            row[key] = statistics.median(r[key] for r in runs)
+        row.update(medians(runs, ("first_call_s", "second_call_s", "backend_compile_s")))
         rows.append(row)
         print(f"{scene:17s} h = {h:4}  {plan:18s}: first call {row['first_call_s']:5.2f} s (backend compile "
               f"{row['backend_compile_s']:5.2f} s), second {row['second_call_s']:.3f} s; nodes whose steps "

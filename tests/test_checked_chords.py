@@ -3,12 +3,13 @@
 per-member chord iteration counts it, its result independent of the other members; the scenes
 whose residual costs most are checked by default."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 import vi_jax as vj
 from vi_jax.engine import _generated_step
-from vi_jax.engine._member_newton import newton_members
+from vi_jax.engine._member_newton import lu, newton_members
 
 RTOL = 1e-12
 
@@ -19,11 +20,12 @@ def _residual(z, c):
     return (x**3 + x - c,), jnp.abs(x**3) + jnp.abs(x) + jnp.abs(c)
 
 
-def _first_converged_count(x, c, max_iterations=20, chord_iterations=2):
-    """A plain float loop: one Newton step, chord steps on its derivative while not converged
-    (the fallback's first step too: it still holds those factors), then Newton steps with the
-    derivative at each new iterate; the iterations up to the first converged iterate."""
-    slope = 3 * x**2 + 1
+def _first_converged_count(x, c, max_iterations=20, chord_iterations=2, slope=None):
+    """A plain float loop: one Newton step (a chord step on ``slope``, a derivative carried from
+    elsewhere, if given), chord steps on that derivative while not converged (the fallback's
+    first step too: it still holds those factors), then Newton steps with the derivative at each
+    new iterate; the iterations up to the first converged iterate."""
+    slope = 3 * x**2 + 1 if slope is None else slope
     for i in range(1, max_iterations + 1):
         x = x - (x**3 + x - c) / slope
         if abs(x**3 + x - c) <= RTOL * (abs(x**3) + abs(x) + abs(c)):
@@ -53,6 +55,41 @@ def test_each_member_stops_at_its_first_converged_iterate():
     for k in range(len(c)):
         (alone,), (alone_iterations, _, _) = solve(c[k : k + 1], guess[k : k + 1])
         assert float(alone[0]) == float(x[k]) and int(alone_iterations[0]) == int(iterations[k]), k
+
+
+def test_rolled_iterations_with_carried_factors_are_the_unrolled_ones():
+    """With carried factors, the full iterations' program rolls Newton's iterations into one loop
+    (``rolled=True``): members that refresh their factors and members that keep a carried
+    derivative (some close to theirs, some far enough off to need the full iterations) take the
+    plain loop's iteration counts, and the iterates, counts, the factors carried on, and the
+    early and fallback flags equal the unrolled steps' (the roots to round-off: XLA may contract
+    the two programs' arithmetic differently)."""
+    # Near the root x = 1 of x³ + x = 2 (derivative 4) with carried derivatives close to 4: the
+    # chord steps converge at the 2nd, 3rd or 4th iterate, early (before the last chord step)
+    # or not; the sixth member's derivative is far off.
+    c = jnp.asarray([2.0, 2.0, 10.0, -3.0, 0.5, 10.0, 2.0, 2.0, 2.0, 2.0])
+    guess = jnp.asarray([1.0, 1.0, 1.9, -1.2, 0.45, 2.0, 1.00001, 1.00001, 1.0001, 1.01])
+    carried = jnp.asarray([4.0, 9.0, 11.0, 5.3, 1.6, 40.0, 4.0, 4.01, 4.01, 4.0])
+    refresh = jnp.asarray([True, False, False, True, False, False, False, False, False, False])
+    ident = lambda tree: tree  # noqa: E731
+
+    def solve(rolled):
+        return newton_members(lambda z: _residual(z, c), (guess,), rtol=RTOL, max_iterations=20, checked_chords=ident,
+                              factors=lu([[carried]]), refresh=refresh, rolled=rolled)
+
+    (x, stats, (factors, early, fell_back)), (x_u, stats_u, (factors_u, early_u, fell_back_u)) = solve(True), solve(False)
+    expected = [_first_converged_count(float(g), float(ci), slope=None if r else float(s))
+                for g, ci, r, s in zip(guess, c, refresh, carried)]
+    np.testing.assert_array_equal(np.asarray(stats[0]), expected)
+    assert {1, 2, 3, 4} <= set(expected) and max(expected) > 4
+    np.testing.assert_array_equal(np.asarray(stats[0]), np.asarray(stats_u[0]))
+    np.testing.assert_array_equal(np.asarray(stats[2]), np.asarray(stats_u[2]))
+    np.testing.assert_array_equal(np.asarray(early), np.asarray(early_u))
+    np.testing.assert_array_equal(np.asarray(fell_back), np.asarray(fell_back_u))
+    assert len(set(zip(np.asarray(early).tolist(), np.asarray(fell_back).tolist()))) == 4  # every combination
+    np.testing.assert_allclose(np.asarray(x[0]), np.asarray(x_u[0]), rtol=8 * np.finfo(float).eps)
+    for a, b in zip(jax.tree.leaves(factors), jax.tree.leaves(factors_u)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=8 * np.finfo(float).eps)
 
 
 def test_unchecked_chord_steps_all_run():

@@ -13,7 +13,9 @@ converged, a final correction, implicit-function gradients; on the CPU plan, whe
 Jacobian costs most, the first step may be a chord step on factors carried from an earlier step
 (:func:`make_step`, :func:`~._member_newton.next_periods`), and where the residual costs most,
 each chord step runs only while some member has not converged, by those members alone (each
-stops at its first converged iterate, as ``vj.simulate``'s rolled loop). On the CPU plan a single-stage step
+stops at its first converged iterate, as ``vj.simulate``'s rolled loop); a concrete call's program
+with Newton's full iterations, where both apply, rolls its iterations into one loop
+(``ROLL_FULL_ITERATIONS``). On the CPU plan a single-stage step
 (orders 1, 2) starts Newton from the extrapolation 2ξ_k − ξ_{k−1}, as ``vj.simulate`` does
 (:func:`_extrapolated`); the accelerator plan starts from ξ_k and runs the step speculatively
 (:func:`_speculative`). On the CPU plan the member loops are one kernel
@@ -93,6 +95,11 @@ PREDICT = True
 SPECULATIVE = True
 ACCELERATOR_UNROLL = 2
 PREDICT_ON_ACCELERATORS = False
+# A concrete call's full program (run where some member needs Newton's full iterations) with
+# carried factors and checked chord steps: its iterations rolled into one loop (True) or
+# unrolled (False, the benchmark's switch): generated_loop. python
+# benchmarks/rolled_full_iterations.py.
+ROLL_FULL_ITERATIONS = True
 
 
 class _Layout(eqx.Module):
@@ -162,7 +169,7 @@ def scene_operations(system, x0, h, tau="cayley", order=1):
 
 
 def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries=True, carry_factors=False,
-              check_chords=False):
+              check_chords=False, rolled=False):
     """``step((carry, extra), h) -> ((carry, extra), (iterations, residual, result))`` on flat
     member arrays; ``boundaries``: the fusion boundaries of :func:`~._member_newton.fusion_boundary` at the residuals,
     the Jacobian and the values the step marks as shared (the CPU plan; a GPU fuses without
@@ -170,6 +177,8 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
     member's LU factors, refresh period and its ceiling, and the step count (:func:`next_periods`); else ``()``
     and every step takes a fresh Jacobian. ``check_chords`` (with ``boundaries``): each chord
     step only while some member has not converged (``newton_members``' ``checked_chords``).
+    ``rolled``: with both, Newton's full iterations and the chord steps rolled into one loop
+    where the full iterations are compiled (``newton_members``' ``rolled``).
     ``step.start(carry)`` is the first ``extra``."""
     equations, update = _equations_of(static, params, tau, rule, n_members, layout, boundaries)
 
@@ -188,7 +197,7 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
         dtype = carry[2][0].dtype
         (g, q, z, n, a, hc), boundary, fn, fn_jac = equations(carry, h)
         checked = boundary if boundaries and check_chords else None
-        options = dict(rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac, checked_chords=checked)
+        options = dict(rtol=rtol, max_iterations=max_iterations, value_and_jacobian=fn_jac, checked_chords=checked, rolled=rolled)
         if carry_factors:
             factors, (period, ceiling), count = extra
             refresh = count % period == 0
@@ -314,7 +323,7 @@ def _per_sub_step(extra, gammas):
     return jax.tree.map(stack, factors), jax.tree.map(stack, periods), count
 
 
-def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries):
+def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries, rolled=False):
     dtype = jnp.asarray(h).dtype
     params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
     # Measured on the CPU plan only: a GPU's whole batch would take a Jacobian whenever one
@@ -325,7 +334,7 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     predict = (PREDICT if boundaries else PREDICT_ON_ACCELERATORS) and len(gammas) == 1
 
     def one_step_of(params, h, max_iterations):
-        step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried, checked)
+        step = make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout, boundaries, carried, checked, rolled)
         one_step = _one_step(step, gammas, h)
         return (_extrapolated(one_step) if predict else one_step), step.start
 
@@ -357,8 +366,14 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
 def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True,
                    stop_at_failure=False):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
-    run length (``stop_at_failure``: :func:`loop_member_nodes`)."""
-    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
+    run length (``stop_at_failure``: :func:`loop_member_nodes`). A concrete call's program: with
+    carried factors and checked chord steps, its Newton iterations are rolled where the full
+    iterations are compiled (``newton_members``' ``rolled``: that program runs only where some
+    member needs them; with the program without them, a user ``vj.System`` on SO(3) compiled for
+    14.5 s instead of 19.8 at order 2 and 25.2 s instead of 30.7 at order 4, 1024 members:
+    ``python benchmarks/rolled_full_iterations.py``)."""
+    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries,
+                                                       rolled=ROLL_FULL_ITERATIONS)
     loops = lambda carry0: loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype, stop_at_failure)  # noqa: E731
     saved, stats = (one_kernel(loops) if boundaries else loops)(carry0)
     return state0, _unpack(layout, carry0[0], saved, stats)

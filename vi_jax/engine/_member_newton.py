@@ -206,7 +206,7 @@ def next_periods(period, ceiling, refreshed, early, fell_back):
 
 
 def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERATIONS, value_and_jacobian=None,
-                   factors=None, refresh=None, checked_chords=None):
+                   factors=None, refresh=None, checked_chords=None, rolled=False):
     """Solve ``fn(z) = 0`` for every member at once; ``z`` is a tuple of member arrays and
     ``fn(z) -> (residual, scale)`` (same tuple structure; scale per member) must not couple
     members. ``value_and_jacobian(z) -> (residual, scale, rows)`` gives the Jacobian (default:
@@ -223,7 +223,11 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
     converged iterate, as ``vj.simulate``'s rolled loop does (its per-member results do not depend
     on the other members); the masked iterates pass the boundary (unmarked, XLA:CPU copies the
     masked solve into every fusion that reads them: 0.6-0.7x on the heavy top). None: every
-    chord step runs for every member, unchecked."""
+    chord step runs for every member, unchecked.
+
+    ``rolled`` (with carried ``factors`` and ``checked_chords``, where the full iterations are
+    compiled): the same iterations rolled into one loop, the residual and its Jacobian compiled
+    once each (:func:`rolled_iterations` inside)."""
 
     carrying = factors is not None
 
@@ -273,6 +277,8 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         return r, scale, None, first
 
     def solve(_, z):
+        if rolled and carrying and checked_chords is not None and max_iterations > 1 + min(chord_iterations, max_iterations - 1):
+            return rolled_iterations(z)
         r, scale, jac, factors = first_factors(z)
         if factors is None:  # a fresh Jacobian for every member
             block = explicit_block(jac)
@@ -346,6 +352,49 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         if not carrying:
             return _finish(*out[:4])
         return _finish(*out[:4], carry=(out[4], early, fell_back))
+
+    def rolled_iterations(z0):
+        """The Newton (or first chord) step, the checked chord steps and the full iterations in
+        one ``while`` loop over the evaluations, each of the residual or, where a member needs new
+        factors (at its first point if it refreshes, at each of its full iterations), of the
+        Jacobian's factors in a conditional whose other branch keeps them: the residual and its
+        Jacobian compiled once each, where the unrolled steps hold the residual four times and
+        the Jacobian twice. The same iterates, counts and carried factors (each member stops at
+        its first converged iterate and takes the final correction there;
+        ``tests/test_checked_chords.py`` against a plain loop). For a concrete call's full
+        program only, run where some member needs the full iterations (``python
+        benchmarks/rolled_full_iterations.py``, a user ``vj.System`` on SO(3), 1024 members, two runs:
+        first call 21.4–23.9 → 15.4–18.2 s at order 2 and 32.8–36.1 → 26.5–30.3 s at order 4,
+        later calls 0.87–1.09× as long). Rolled everywhere the factors are carried, the steps
+        without the full iterations ran 1.06–1.15× as long (the vehicle at orders 2 and 4, a
+        throwaway A/B): that program stays unrolled."""
+        n_chord = max(min(chord_iterations, max_iterations - 1), 0)
+        full_from = 1 + n_chord  # a member's iterations before its first full one
+        like = z0[0]
+        zeros = tuple(jnp.zeros_like(c) for c in z0)
+        no = jnp.zeros(jnp.shape(like), bool)
+        state = (jnp.asarray(0, jnp.int32), jnp.zeros(jnp.shape(like), jnp.int32), z0, zeros, jnp.ones_like(like), factors, ~no, no)
+
+        def body(state):
+            k, i, z, r, scale, factors, evaluating, early = state
+            needs = evaluating & jnp.where(k == 0, refresh, i >= full_from)
+
+            def fresh(z):
+                r, scale, jac = value_and_jacobian_rows(z)
+                return r, scale, _where(needs, as_members(lu(jac)), factors)
+
+            new = jax.lax.cond(jnp.any(needs), fresh, lambda z: tuple(fn(z)) + (factors,), z)
+            r, scale = _where(evaluating, new[:2], (r, scale))
+            factors = new[2]
+            i = i + (evaluating & (k > 0)).astype(i.dtype)
+            if n_chord:  # the residual before the last chord step
+                early = jnp.where(k <= n_chord, norm(r) <= EARLY * rtol * scale, early)
+            going = (k == 0) | (not_converged(r, scale) & ((i < full_from) | ((i < max_iterations) & finite(r))))
+            z = checked_chords(_where(going, _axpy(-1.0, lu_solve(factors, r), z), z))
+            return k + 1, i, z, r, scale, factors, going, early
+
+        _, i, z, r, scale, last, _, early = jax.lax.while_loop(lambda s: jnp.any(s[6]), body, state)
+        return _finish(i, _axpy(-1.0, lu_solve(last, r), z), r, scale, carry=(last, early, i > full_from))
 
     def solve_explicit_first(z, r, jac, rows, cols):
         """Rows affine in the unknowns ``cols`` alone, with coefficients that do not depend on
