@@ -230,6 +230,7 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
     once each (:func:`rolled_iterations` inside)."""
 
     carrying = factors is not None
+    n_chord = max(min(chord_iterations, max_iterations - 1), 0)  # chord steps after the Newton step
 
     def residual_only(z):
         return fn(z)[0]
@@ -277,7 +278,7 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         return r, scale, None, first
 
     def solve(_, z):
-        if rolled and carrying and checked_chords is not None and max_iterations > 1 + min(chord_iterations, max_iterations - 1):
+        if rolled and carrying and checked_chords is not None and max_iterations > 1 + n_chord:
             return rolled_iterations(z)
         r, scale, jac, factors = first_factors(z)
         if factors is None:  # a fresh Jacobian for every member
@@ -296,7 +297,6 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
             z = _axpy(-1.0, lu_solve(factors, r), z)
             r, scale = fn(z)
             return _finish(jnp.ones(jnp.shape(scale), jnp.int32), z, r, scale)
-        n_chord = max(min(chord_iterations, max_iterations - 1), 0)
 
         def chord_step(state):
             i, z, r, scale = state
@@ -368,7 +368,6 @@ def newton_members(fn, z0, *, rtol, max_iterations, chord_iterations=CHORD_ITERA
         later calls 0.87–1.09× as long). Rolled everywhere the factors are carried, the steps
         without the full iterations ran 1.06–1.15× as long (the vehicle at orders 2 and 4, a
         throwaway A/B): that program stays unrolled."""
-        n_chord = max(min(chord_iterations, max_iterations - 1), 0)
         full_from = 1 + n_chord  # a member's iterations before its first full one
         like = z0[0]
         zeros = tuple(jnp.zeros_like(c) for c in z0)
