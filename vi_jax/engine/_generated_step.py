@@ -218,8 +218,47 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
     return step
 
 
-def _start(system, x0, axes, dtype, n_members):
-    """Scene leaves as components, the initial state (members first) and the carry layout."""
+def zero_entries(system, sys_axes):
+    """Per array leaf of a concrete ``system`` (in the order of its leaves): the flat indices of
+    the entries that are exactly zero for every member (``sys_axes``: 0 for a leaf with a
+    leading member axis); ``()`` for a traced leaf. The generated step of a concrete call folds
+    them (:func:`_start`)."""
+    is_none = lambda x: x is None  # noqa: E731
+    out = []
+    for ax, x in zip(jax.tree.leaves(sys_axes, is_leaf=is_none), jax.tree.leaves(system, is_leaf=is_none)):
+        if not eqx.is_array(x):
+            continue
+        if isinstance(x, jax.core.Tracer):
+            out.append(())
+            continue
+        v = np.asarray(x)
+        v = v.reshape((v.shape[0] if ax == 0 else 1, -1))
+        out.append(tuple(int(i) for i in np.flatnonzero(np.all(v == 0, axis=0))))
+    return tuple(out)
+
+
+def _with_zeros(params, zeros):
+    """``params`` (leaves as components) with the entries ``zeros`` (:func:`zero_entries`) the
+    constant 0: products with them fold away at trace time, as the zeros of structure matrices
+    do (a diagonal inertia's off-diagonal entries)."""
+    is_components = lambda x: isinstance(x, np.ndarray) and x.dtype == object  # noqa: E731
+    leaves, treedef = jax.tree.flatten(params, is_leaf=is_components)
+    if len(leaves) != len(zeros):
+        raise ValueError(f"zeros: expected one tuple of indices per array leaf of the scene ({len(leaves)}), got {len(zeros)}")
+    folded = []
+    for x, indices in zip(leaves, zeros):
+        if indices:
+            x = x.copy()
+            flat = x.reshape(-1)
+            for i in indices:
+                flat[i] = np.zeros((), jnp.result_type(flat[i]))[()]
+        folded.append(x)
+    return jax.tree.unflatten(treedef, folded)
+
+
+def _start(system, x0, axes, dtype, n_members, zeros=()):
+    """Scene leaves as components (the entries ``zeros``, :func:`zero_entries`, as constant
+    zeros), the initial state (members first) and the carry layout."""
     sys_axes, state_axes = axes
     state0 = jax.vmap(
         lambda s, x: legendre_initial_state(s, x.g, x.xi, x.q, x.qdot), in_axes=(sys_axes, state_axes), axis_size=n_members
@@ -227,6 +266,8 @@ def _start(system, x0, axes, dtype, n_members):
     state0 = jax.tree.map(lambda x: jnp.asarray(x, dtype), state0)
     params, static = eqx.partition(system, eqx.is_array)
     params = jax.tree.map(lambda ax, x: None if x is None else components(x, ax == 0), sys_axes, params, is_leaf=lambda x: x is None)
+    if zeros:
+        params = _with_zeros(params, zeros)
     fields = tuple(getattr(state0, f) for f in FIELDS)
     layout = _Layout(tuple(None if x is None else x.shape[1:] for x in fields))
     carry0 = layout.flat(tuple(None if x is None else components(x, True) for x in fields), n_members, dtype)
@@ -323,9 +364,9 @@ def _per_sub_step(extra, gammas):
     return jax.tree.map(stack, factors), jax.tree.map(stack, periods), count
 
 
-def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries, rolled=False):
+def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries, rolled=False, zeros=()):
     dtype = jnp.asarray(h).dtype
-    params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members)
+    params, static, state0, layout, carry0 = _start(system, x0, axes, dtype, n_members, zeros)
     # Measured on the CPU plan only: a GPU's whole batch would take a Jacobian whenever one
     # member does.
     costs = _residual_operations(static, params, tau, rule, n_members, layout, carry0, h) if boundaries else (0, 0)
@@ -364,7 +405,7 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
 
 
 def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True,
-                   stop_at_failure=False):
+                   stop_at_failure=False, zeros=()):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
     run length (``stop_at_failure``: :func:`loop_member_nodes`). A concrete call's program: with
     carried factors and checked chord steps, its Newton iterations are rolled where the full
@@ -373,7 +414,7 @@ def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule
     14.5 s instead of 19.8 at order 2 and 25.2 s instead of 30.7 at order 4, 1024 members:
     ``python benchmarks/rolled_full_iterations.py``)."""
     dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries,
-                                                       rolled=ROLL_FULL_ITERATIONS)
+                                                       rolled=ROLL_FULL_ITERATIONS, zeros=zeros)
     loops = lambda carry0: loop_member_nodes(worst_step, carry0, _saved, n_saved, save_every, capacity, n_members, dtype, stop_at_failure)  # noqa: E731
     saved, stats = (one_kernel(loops) if boundaries else loops)(carry0)
     return state0, _unpack(layout, carry0[0], saved, stats)

@@ -1,0 +1,92 @@
+"""A concrete call's generated step with the scene's exact zeros folded (``FOLD_ZEROS``,
+``vi_jax/engine/_ensemble.py``; ``zero_entries``, ``vi_jax/engine/_generated_step.py``) against
+the same step with every parameter entry a traced value: ``vj.ensemble`` called on concrete
+inputs as users call it (1024 members × 1000 steps, final node saved, Cayley, h = 0.01), both
+programs compiled in one process and timed alternately (median and fastest of 9 runs each),
+with the operations per member of the residual and of the residual with its Jacobian
+(the jaxprs' member-array equations) either way. The scenes' matrices are diagonal (inertia,
+added mass) and their offsets have zero components: a product with such an entry folds away
+at trace time, as the zeros of structure matrices do. "mass per member": every parameter leaf
+carries the member axis (``vj.vary``), zero for every member.
+
+    python benchmarks/folded_zeros.py [--fast-loops]
+"""
+
+import argparse
+
+from _timing import alternate_samples, parse_args_with_fast_loops, write_config_json
+
+PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ARGS = parse_args_with_fast_loops(PARSER)
+
+import statistics  # noqa: E402
+import time  # noqa: E402
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import vi_jax as vj  # noqa: E402
+from _generated import perturbed_states  # noqa: E402
+from vi_jax.discrete._composition import composition_coefficients  # noqa: E402
+from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
+from vi_jax.lie import difference_map  # noqa: E402
+
+MEMBERS, STEPS, REPEATS, H = 1024, 1000, 9, 0.01
+CASES = [("rigid_body", vj.models.RigidBody, 1), ("rigid_body", vj.models.RigidBody, 2), ("heavy_top", vj.models.HeavyTop, 1),
+         ("heavy_top", vj.models.HeavyTop, 2), ("vehicle", vj.models.UnderwaterVehicle, 1), ("vehicle", vj.models.UnderwaterVehicle, 2),
+         ("vehicle, mass per member", vj.models.UnderwaterVehicle, 1)]
+
+
+def operations(model, system_axes, states, order, folded):
+    """Member-array operations of the residual and of the residual with its Jacobian."""
+    axes = (jax.tree.map(lambda _: system_axes, model), jax.tree.map(lambda _: 0, states))
+    zeros = _generated_step.zero_entries(model, axes[0]) if folded else ()
+    params, static, _, layout, carry = _generated_step._start(model, states, axes, jnp.float64, MEMBERS, zeros)
+    rule, _ = composition_coefficients(order)
+    return _generated_step._residual_operations(static, params, difference_map("cayley"), rule, MEMBERS, layout, carry, jnp.asarray(H))
+
+
+def call(model, system_axes, states, order, folded):
+    def run():
+        _ensemble.FOLD_ZEROS = folded
+        return vj.ensemble(model, states, H, STEPS, order=order, save_every=STEPS, system_axes=system_axes, throw=False).g
+
+    return run
+
+
+def main():
+    rows = []
+    try:
+        for name, scene, order in CASES:
+            model, system_axes = scene(), None
+            if "per member" in name:
+                model, system_axes = vj.vary(model, mass=model.mass * np.linspace(0.98, 1.02, MEMBERS)), 0
+            states = perturbed_states(scene().initial_state(), MEMBERS)
+            calls = {folded: call(model, system_axes, states, order, folded) for folded in (False, True)}
+            first, finals = {}, {}
+            for folded, run in calls.items():
+                start = time.perf_counter()
+                finals[folded] = np.asarray(jax.block_until_ready(run())[:, -1])
+                first[folded] = time.perf_counter() - start
+            samples = alternate_samples(calls, REPEATS)
+            rate = {f: MEMBERS * STEPS / statistics.median(s) for f, s in samples.items()}
+            fastest = {f: MEMBERS * STEPS / min(s) for f, s in samples.items()}
+            ops = {f: operations(model, system_axes, states, order, f) for f in (False, True)}
+            diff = float(np.max(np.abs(finals[True] - finals[False])))
+            rows.append(dict(scene=name, order=order, operations_traced=ops[False], operations_folded=ops[True],
+                             traced_rate=rate[False], folded_rate=rate[True], speedup=rate[True] / rate[False],
+                             speedup_fastest=fastest[True] / fastest[False], first_call_traced_s=first[False],
+                             first_call_folded_s=first[True], max_abs_g_difference=diff))
+            print(f"{name:24s} order {order}: operations {ops[False]} -> {ops[True]}; {rate[False] / 1e6:6.2f} -> {rate[True] / 1e6:6.2f} M "
+                  f"member-steps/s ({rate[True] / rate[False]:.2f}x by medians, {fastest[True] / fastest[False]:.2f}x by the fastest); "
+                  f"first call {first[False]:.1f} / {first[True]:.1f} s; max |g difference| {diff:.1e}", flush=True)
+    finally:
+        _ensemble.FOLD_ZEROS = True
+    write_config_json("folded_zeros", ARGS.fast_loops, rows=rows)
+
+
+if __name__ == "__main__":
+    main()
