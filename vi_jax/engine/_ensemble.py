@@ -69,12 +69,14 @@ from ._member_split import CHUNK as CHUNK, in_chunks, leaf_axes, member_counts, 
 from ._generated_step import generated_loop, generated_scan, generated_solution, zero_entries
 
 METHODS = ("auto", "batched", "vmap")
-# A concrete call's generated step folds the scene's parameter entries that are exactly zero for
-# every member (zero_entries: a diagonal inertia's off-diagonal entries; a program per pattern of
-# zeros); False: the benchmark's switch. python benchmarks/folded_zeros.py (1024 members, default
-# XLA): 1.04-1.58x faster across the rigid body, heavy top and vehicle at orders 1 and 2 (the
-# heavy top at order 2 1.58x: its residual 453 -> 287 operations per member, the vehicle at
-# order 1 1.13x: 266 -> 214).
+# The generated step folds the scene's parameter entries that are exactly zero for every member
+# where their values are known when the step is traced (a concrete call, or a scene a caller's
+# jit closes over; zero_entries: a diagonal inertia's off-diagonal entries; a program per pattern
+# of zeros); False: the benchmark's switch. python benchmarks/folded_zeros.py [--fast-loops]
+# (1024 members): concrete calls 1.13-1.58x faster (default XLA; 1.03-1.72x with the loop option)
+# across the rigid body, heavy top and vehicle at orders 1 and 2, 1.12-1.75x under such a jit (the
+# heavy top at order 2 fastest: its residual 453 -> 287 operations per member; the vehicle at
+# order 1: 266 -> 214, 1.13-1.21x).
 FOLD_ZEROS = True
 
 
@@ -153,6 +155,9 @@ def ensemble(
     that counts them. On CPU a concrete call saving a node every 4 steps or more runs the
     members in one group per core (at least 64 members each), the groups at the same time; there
     the generated step is compiled with ``ENSEMBLE_OPTIONS`` (:mod:`._compile_options`).
+    Where the scene's values are known when the step is traced (concrete inputs, or a scene a
+    caller's ``jit`` closes over), the generated step folds its entries that are exactly zero for
+    every member (``FOLD_ZEROS``): one program per pattern of zeros.
     ``progress=True`` (outside ``jit``) runs the members in equal groups of
     at least 64 (at most 100 groups; one compiled program) with a progress bar between them.
     """
@@ -203,6 +208,7 @@ def ensemble(
         max_iterations=val.check_int("max_newton_iterations", max_newton_iterations, 1),
         checkpoint=bool(checkpoint), batched=batched, scheme=scheme,
         chunk=CHUNK if target_platform(mesh) == "cpu" else None,
+        zeros=zero_entries(system, sys_axes) if batched == "generated" and FOLD_ZEROS else (),  # () for traced leaves
     )
     dynamic, static = eqx.partition((system, x0), eqx.is_array)
     axes = (sys_axes, state_axes)
@@ -215,10 +221,8 @@ def ensemble(
         if looped:
             n_saved = options["n_saved"]
             counts = tuple(val.step_count(n) for n in (n_saved, save_every))
-            loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk")}
+            loop_options = {k: options[k] for k in ("tau", "order", "rtol", "max_iterations", "batched", "chunk", "zeros")}
             loop_options["capacity"] = capacity = ensemble_capacity(n_saved)
-            if batched == "generated" and FOLD_ZEROS:
-                loop_options["zeros"] = zero_entries(system, sys_axes)
             if mesh is None:
                 def program(max_iterations, stop_at_failure):
                     plan = dict(loop_options, max_iterations=max_iterations, stop_at_failure=stop_at_failure)
@@ -249,7 +253,8 @@ def ensemble(
 
 
 @eqx.filter_jit
-def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk):
+def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order, rtol, max_iterations, checkpoint, batched, scheme, chunk,
+         zeros=()):
     system, x0 = eqx.combine(dynamic, static)
     if batched == "generated":
         rule, gammas = composition_coefficients(order)
@@ -257,7 +262,8 @@ def _run(dynamic, static, axes, h, *, n_members, n_saved, save_every, tau, order
             dynamic, h = _opaque(dynamic, h)
 
         def kernel(system, x0, n):
-            return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint, chunk is not None)
+            return generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n, checkpoint, chunk is not None,
+                                  zeros)
 
         nodes = in_chunks(dynamic, static, axes, n_members, chunk, kernel)
         return generated_solution(eqx.combine(dynamic, static)[0], axes[0], nodes, h, save_every, rtol, max_iterations, chunk is not None)

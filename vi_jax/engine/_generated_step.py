@@ -266,7 +266,7 @@ def _start(system, x0, axes, dtype, n_members, zeros=()):
     state0 = jax.tree.map(lambda x: jnp.asarray(x, dtype), state0)
     params, static = eqx.partition(system, eqx.is_array)
     params = jax.tree.map(lambda ax, x: None if x is None else components(x, ax == 0), sys_axes, params, is_leaf=lambda x: x is None)
-    if zeros:
+    if any(zeros):
         params = _with_zeros(params, zeros)
     fields = tuple(getattr(state0, f) for f in FIELDS)
     layout = _Layout(tuple(None if x is None else x.shape[1:] for x in fields))
@@ -394,10 +394,13 @@ def _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_membe
     return dtype, state0, layout, carry0, worst_step
 
 
-def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n_members, checkpoint, boundaries=True):
+def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, rtol, max_iterations, n_members, checkpoint, boundaries=True,
+                   zeros=()):
     """(initial state, (saved states, statistics)) of every member, members first, with static
-    step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does."""
-    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries)
+    step counts; ``checkpoint`` rematerialises in reverse mode as ``vj.simulate`` does; the
+    scene's entries ``zeros`` (:func:`zero_entries`) folded."""
+    dtype, state0, layout, carry0, worst_step = _setup(system, x0, h, axes, tau, rule, gammas, rtol, max_iterations, n_members, boundaries,
+                                                       zeros=zeros)
     unroll = 1 if boundaries else ACCELERATOR_UNROLL
     loops = lambda carry0: scan_member_nodes(worst_step, carry0, _saved, n_saved, save_every, checkpoint, n_members, dtype, unroll)  # noqa: E731
     saved, stats = (one_kernel(loops) if boundaries else loops)(carry0)
@@ -407,7 +410,7 @@ def generated_scan(system, x0, h, axes, n_saved, save_every, tau, rule, gammas, 
 def generated_loop(system, x0, h, axes, n_saved, save_every, capacity, tau, rule, gammas, rtol, max_iterations, n_members, boundaries=True,
                    stop_at_failure=False, zeros=()):
     """The same with traced ``n_saved`` (≤ ``capacity``) and ``save_every``: one program for every
-    run length (``stop_at_failure``: :func:`loop_member_nodes`). A concrete call's program: with
+    run length (``stop_at_failure``: :func:`loop_member_nodes`; ``zeros``: :func:`zero_entries`). A concrete call's program: with
     carried factors and checked chord steps, its Newton iterations are rolled where the full
     iterations are compiled (``newton_members``' ``rolled``: that program runs only where some
     member needs them; with the program without them, a user ``vj.System`` on SO(3) compiled for
