@@ -36,16 +36,19 @@ def _zeros(system, system_axes):
     return _generated_step.zero_entries(system, leaf_axes("system_axes", system, system_axes))
 
 
-def test_zero_entries_are_those_zero_for_every_member():
+def test_zero_entries_are_those_zero_for_every_member(monkeypatch):
     """Shared leaves: their zero entries; leaves with a member axis: the entries zero for every
-    member (one member's off-diagonal pair keeps the pair); traced leaves: none."""
+    member (one member's off-diagonal pair keeps the pair), found on the host or, for a large
+    leaf, where it lives; traced leaves: none."""
     top = vj.models.HeavyTop(inertia=[0.5, 0.6, 1.0], center_of_mass=[0.0, 0.0, 0.3])
     leaves = [np.asarray(x) for x in jax.tree.leaves(top)]
     zeros = dict(zip([x.shape for x in leaves], _zeros(top, None)))
     assert zeros == {(3, 3): OFF_DIAGONAL, (3,): (0, 1), (): ()}  # inertia, centre of mass; mass and gravity
 
-    assert _zeros(vj.vary(vj.models.RigidBody(), inertia=_inertias()), 0) == (OFF_DIAGONAL,)
-    assert _zeros(vj.vary(vj.models.RigidBody(), inertia=_inertias(coupled_member=3)), 0) == ((2, 5, 6, 7),)
+    for large in (1 << 20, 1):  # reduced on the host; where the leaf lives (a large leaf)
+        monkeypatch.setattr(_generated_step, "LARGE_LEAF", large)
+        assert _zeros(vj.vary(vj.models.RigidBody(), inertia=_inertias()), 0) == (OFF_DIAGONAL,)
+        assert _zeros(vj.vary(vj.models.RigidBody(), inertia=_inertias(coupled_member=3)), 0) == ((2, 5, 6, 7),)
 
     seen = []
 

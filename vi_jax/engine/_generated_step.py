@@ -231,10 +231,24 @@ def zero_entries(system, sys_axes):
         if isinstance(x, jax.core.Tracer):
             out.append(())
             continue
-        v = np.asarray(x)
-        v = v.reshape((v.shape[0] if ax == 0 else 1, -1))
-        out.append(tuple(int(i) for i in np.flatnonzero(np.all(v == 0, axis=0))))
+        if ax == 0 and isinstance(x, jax.Array) and x.size >= LARGE_LEAF:
+            zero = np.asarray(_zero_for_every_member(x))
+        else:
+            v = np.asarray(x)
+            zero = np.all(v.reshape((v.shape[0] if ax == 0 else 1, -1)) == 0, axis=0)
+        out.append(tuple(int(i) for i in np.flatnonzero(zero)))
     return tuple(out)
+
+
+# Entries of a member-axis leaf from which zero_entries reduces it where it lives: a GPU's leaf
+# would cross to the host whole. On the CPU, a vehicle with a mass per member (vj.vary: every
+# leaf per member), 10^6 members: 57 ms on the host, 12 ms so (a throwaway timing).
+LARGE_LEAF = 1 << 20
+
+
+@jax.jit
+def _zero_for_every_member(x):
+    return jnp.all(x.reshape(x.shape[0], -1) == 0, axis=0)
 
 
 def _with_zeros(params, zeros):
