@@ -221,8 +221,8 @@ def make_step(static, params, tau, rule, rtol, max_iterations, n_members, layout
 def zero_entries(system, sys_axes):
     """Per array leaf of a concrete ``system`` (in the order of its leaves): the flat indices of
     the entries that are exactly zero for every member (``sys_axes``: 0 for a leaf with a
-    leading member axis); ``()`` for a traced leaf. The generated step of a concrete call folds
-    them (:func:`_start`)."""
+    leading member axis); ``()`` for a traced leaf. The generated step folds them (:func:`_start`)
+    where the scene is known when it is traced (``vj.ensemble``'s ``FOLD_ZEROS``)."""
     is_none = lambda x: x is None  # noqa: E731
     out = []
     for ax, x in zip(jax.tree.leaves(sys_axes, is_leaf=is_none), jax.tree.leaves(system, is_leaf=is_none)):
@@ -240,8 +240,8 @@ def zero_entries(system, sys_axes):
     return tuple(out)
 
 
-# Entries of a member-axis leaf from which zero_entries reduces it where it lives: a GPU's leaf
-# would cross to the host whole. On the CPU, a vehicle with a mass per member (vj.vary: every
+# A member-axis leaf of at least this many entries is reduced by zero_entries on its device (a
+# GPU's leaf would otherwise cross to the host whole). On the CPU, a vehicle with a mass per member (vj.vary: every
 # leaf per member), 10^6 members: 57 ms on the host, 12 ms so (a throwaway timing).
 LARGE_LEAF = 1 << 20
 
