@@ -26,28 +26,16 @@ import time  # noqa: E402
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
-from vi_jax.discrete._composition import composition_coefficients  # noqa: E402
 from vi_jax.engine import _ensemble, _generated_step  # noqa: E402
-from vi_jax.lie import difference_map  # noqa: E402
 
 MEMBERS, STEPS, REPEATS, H = 1024, 1000, 9, 0.01
 CASES = [("rigid_body", vj.models.RigidBody, 1), ("rigid_body", vj.models.RigidBody, 2), ("heavy_top", vj.models.HeavyTop, 1),
          ("heavy_top", vj.models.HeavyTop, 2), ("vehicle", vj.models.UnderwaterVehicle, 1), ("vehicle", vj.models.UnderwaterVehicle, 2),
          ("vehicle, mass per member", vj.models.UnderwaterVehicle, 1)]
-
-
-def operations(model, system_axes, states, order, folded):
-    """Member-array operations of the residual and of the residual with its Jacobian."""
-    axes = (jax.tree.map(lambda _: system_axes, model), jax.tree.map(lambda _: 0, states))
-    zeros = _generated_step.zero_entries(model, axes[0]) if folded else ()
-    params, static, _, layout, carry = _generated_step._start(model, states, axes, jnp.float64, MEMBERS, zeros)
-    rule, _ = composition_coefficients(order)
-    return _generated_step._residual_operations(static, params, difference_map("cayley"), rule, MEMBERS, layout, carry, jnp.asarray(H))
 
 
 def calls(model, system_axes, states, order):
@@ -89,7 +77,7 @@ def main():
             samples = alternate_samples(runs, REPEATS)
             rate = {k: MEMBERS * STEPS / statistics.median(s) for k, s in samples.items()}
             fastest = {k: MEMBERS * STEPS / min(s) for k, s in samples.items()}
-            ops = {f: operations(model, system_axes, states, order, f) for f in (False, True)}
+            ops = {f: _generated_step.scene_operations(model, states, H, order=order, system_axes=system_axes, folded=f) for f in (False, True)}
             diff = float(np.max(np.abs(finals[True] - finals[False])))
             speedup = {kind: rate[kind, True] / rate[kind, False] for kind in ("concrete", "closed over")}
             rows.append(dict(scene=name, order=order, operations_traced=ops[False], operations_folded=ops[True],

@@ -7,10 +7,8 @@ import jax
 import numpy as np
 
 import vi_jax as vj
-from vi_jax.discrete._composition import composition_coefficients
 from vi_jax.engine import _ensemble, _generated_step
 from vi_jax.engine._member_split import leaf_axes
-from vi_jax.lie import difference_map
 
 EPS = np.finfo(np.float64).eps
 N_MEMBERS = 5
@@ -66,13 +64,7 @@ def test_folded_zeros_take_work_out_of_the_step():
     inertia's six zero entries and its centre of mass's two vanish."""
     top = vj.models.HeavyTop()
     states = _states(top.initial_state())
-    axes = (leaf_axes("system_axes", top, None), leaf_axes("x0_axes", states, 0))
-    rule, _ = composition_coefficients(1)
-    counts = {}
-    for folded in (False, True):
-        zeros = _generated_step.zero_entries(top, axes[0]) if folded else ()
-        params, static, _, layout, carry = _generated_step._start(top, states, axes, np.float64, N_MEMBERS, zeros)
-        counts[folded] = _generated_step._residual_operations(static, params, difference_map("cayley"), rule, N_MEMBERS, layout, carry, np.float64(0.01))
+    counts = {folded: _generated_step.scene_operations(top, states, 0.01, order=1, folded=folded) for folded in (False, True)}
     assert counts[True][0] < counts[False][0] and counts[True][1] < counts[False][1], counts
 
 

@@ -157,13 +157,15 @@ def _residual_operations(static, params, tau, rule, n_members, layout, carry, h)
     return tuple(_member_operations(jax.make_jaxpr(f)(carry[4]).jaxpr, n_members) for f in (fn, fn_jac))
 
 
-def scene_operations(system, x0, h, tau="cayley", order=1):
+def scene_operations(system, x0, h, tau="cayley", order=1, system_axes=None, folded=False):
     """Operations per member in the jaxprs of the residual and of the residual with its Jacobian
     (what ``CHECK_COST`` and ``CARRY_COST`` measure) for an ensemble of ``x0`` (members first)
-    under one ``system``."""
+    under ``system`` (``system_axes``: 0 for a member axis on every leaf); ``folded``: with the
+    scene's zeros folded (:func:`zero_entries`)."""
     n_members = jax.tree.leaves(x0)[0].shape[0]
-    axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, x0))
-    params, static, _, layout, carry = _start(system, x0, axes, jnp.asarray(h).dtype, n_members)
+    axes = (jax.tree.map(lambda _: system_axes, system), jax.tree.map(lambda _: 0, x0))
+    zeros = zero_entries(system, axes[0]) if folded else ()
+    params, static, _, layout, carry = _start(system, x0, axes, jnp.asarray(h).dtype, n_members, zeros)
     rule, _ = composition_coefficients(order)
     return _residual_operations(static, params, difference_map(tau), rule, n_members, layout, carry, jnp.asarray(h))
 
@@ -251,12 +253,16 @@ def _zero_for_every_member(x):
     return jnp.all(x.reshape(x.shape[0], -1) == 0, axis=0)
 
 
+def _is_components(x):
+    """Whether ``x`` is a scene leaf held as components (an object array)."""
+    return isinstance(x, np.ndarray) and x.dtype == object
+
+
 def _with_zeros(params, zeros):
     """``params`` (leaves as components) with the entries ``zeros`` (:func:`zero_entries`) the
     constant 0: products with them fold away at trace time, as the zeros of structure matrices
     do (a diagonal inertia's off-diagonal entries)."""
-    is_components = lambda x: isinstance(x, np.ndarray) and x.dtype == object  # noqa: E731
-    leaves, treedef = jax.tree.flatten(params, is_leaf=is_components)
+    leaves, treedef = jax.tree.flatten(params, is_leaf=_is_components)
     if len(leaves) != len(zeros):
         raise ValueError(f"zeros: expected one tuple of indices per array leaf of the scene ({len(leaves)}), got {len(zeros)}")
     folded = []
@@ -346,10 +352,9 @@ def _speculative(one_step_of, params, h, max_iterations):
     benchmarks/gpu_step_profile.py``). Differentiated as the step with the fallback inside
     (a loop of traced length has no reverse mode); the scene's parameters and h are explicit
     inputs of the rule."""
-    is_components = lambda x: isinstance(x, np.ndarray) and x.dtype == object  # noqa: E731
-    leaves, treedef = jax.tree.flatten(params, is_leaf=is_components)
-    shapes = [x.shape if is_components(x) else None for x in leaves]
-    flat = [list(x.reshape(-1)) if is_components(x) else x for x in leaves]
+    leaves, treedef = jax.tree.flatten(params, is_leaf=_is_components)
+    shapes = [x.shape if _is_components(x) else None for x in leaves]
+    flat = [list(x.reshape(-1)) if _is_components(x) else x for x in leaves]
 
     def rebuild(flat):
         return jax.tree.unflatten(treedef, [x if s is None else from_member_arrays(x, s) for x, s in zip(flat, shapes)])
