@@ -49,6 +49,11 @@ for _name, _value in _CACHE_SETTINGS.items():
     os.environ[_name.upper()] = str(_value)
     jax.config.update(_name, _value)
 
+# Start the backend now, with the flags above: a test that runs the command line in-process
+# (``vi_jax.cli.main``, which asks for the loop option in its own process) then leaves XLA_FLAGS,
+# and with them the plans of every later test in this worker, as they are.
+jax.devices()
+
 
 def pytest_unconfigure(config):
     if _CACHE_OWNER and not hasattr(config, "workerinput"):

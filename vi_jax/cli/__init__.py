@@ -46,9 +46,10 @@ def _parser():
 
 
 def main(argv=None):
-    from ..engine import enable_fast_cpu_loops
+    from ..engine._cpu_tuning import backend_started, enable_fast_cpu_loops
 
-    enable_fast_cpu_loops()  # before the first JAX computation of this process
+    if not backend_started():  # the command's own process (called in a running session: its flags stay)
+        enable_fast_cpu_loops()
     from .._accuracy import AccuracyWarning
 
     args = _parser().parse_args(argv)

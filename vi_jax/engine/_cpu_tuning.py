@@ -10,18 +10,37 @@ computation initialises the CPU backend, so this must run before any JAX computa
 """
 
 import os
+import warnings
 
 from .._xla_flags import LOOP_OPTION
 
 FAST_LOOPS_FLAG = f"--xla_backend_extra_options={LOOP_OPTION}=1000000000"
 
 
+def backend_started() -> bool:
+    """Whether a JAX computation has initialised the backends (XLA has read its flags)."""
+    from jax._src import xla_bridge
+
+    return xla_bridge.backends_are_initialized()
+
+
 def enable_fast_cpu_loops() -> bool:
     """Add the option to ``XLA_FLAGS`` unless the user set ``xla_backend_extra_options``
-    already. Returns whether the option is now requested; it takes effect only if no JAX
-    computation ran before in this process. The ``vi-jax`` command line calls it."""
+    already. Returns whether the option is now requested. The ``vi-jax`` command line calls it.
+
+    Call it before any JAX computation: after one, XLA has read its flags, so this warns and
+    leaves ``XLA_FLAGS`` as it is (vi_jax plans its programs by ``XLA_FLAGS``: changed then, they
+    would be planned for loops that XLA does not compile as one kernel)."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_backend_extra_options" in flags:
         return LOOP_OPTION in flags
+    if backend_started():
+        warnings.warn(
+            "enable_fast_cpu_loops: a JAX computation has already run in this process, and XLA reads "
+            "its flags once, at the first one: the loop option is not enabled. Call it first (or set "
+            f"XLA_FLAGS={FAST_LOOPS_FLAG} before starting Python).",
+            stacklevel=2,
+        )
+        return False
     os.environ["XLA_FLAGS"] = f"{flags} {FAST_LOOPS_FLAG}".strip()
     return True
