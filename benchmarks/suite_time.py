@@ -23,6 +23,7 @@ import tempfile
 import time
 from datetime import datetime, timezone
 from pathlib import Path
+from xml.etree import ElementTree
 
 from _timing import write_json
 
@@ -45,12 +46,20 @@ def checkout(sha, root):
     return path
 
 
+def test_seconds(junit):
+    """Seconds of each test (setup, call and teardown) from pytest's JUnit XML report."""
+    cases = ElementTree.parse(junit).getroot().iter("testcase")
+    return {f"{case.get('classname')}::{case.get('name')}": round(float(case.get("time", 0.0)), 2) for case in cases}
+
+
 def run_suite(path):
-    """Wall seconds, pytest's own summary line and its counts for the suite at ``path``."""
+    """Wall seconds, pytest's own summary line and its counts, and each test's seconds, for the
+    suite at ``path``."""
     env = dict(os.environ, PYTHONPATH=str(path))
+    junit = path / "suite_time_junit.xml"
     start = time.perf_counter()
     done = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"],
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", f"--junitxml={junit}"],
         cwd=path, env=env, capture_output=True, text=True,
     )
     wall = time.perf_counter() - start
@@ -59,7 +68,7 @@ def run_suite(path):
     found = SUMMARY.search(last)
     passed, failed, pytest_s = (int(found[1]), int(found[2] or 0), float(found[3])) if found else (0, 0, None)
     return {"wall_s": round(wall, 1), "pytest_s": pytest_s, "passed": passed, "failed": failed,
-            "returncode": done.returncode, "summary": last}
+            "returncode": done.returncode, "summary": last, "tests_s": test_seconds(junit) if junit.exists() else {}}
 
 
 def main():
