@@ -28,7 +28,8 @@ from xml.etree import ElementTree
 from _timing import write_json
 
 REPO = Path(__file__).resolve().parent.parent
-SUMMARY = re.compile(r"(\d+) passed(?:, (\d+) failed)?.* in ([\d.]+)s")
+COUNT = {outcome: re.compile(rf"(\d+) {outcome}") for outcome in ("passed", "failed", "error")}
+SECONDS = re.compile(r" in ([\d.]+)s")
 
 
 def resolve(version):
@@ -46,7 +47,7 @@ def checkout(sha, root):
     return path
 
 
-def test_seconds(junit):
+def seconds_per_test(junit):
     """Seconds of each test (setup, call and teardown) from pytest's JUnit XML report."""
     cases = ElementTree.parse(junit).getroot().iter("testcase")
     return {f"{case.get('classname')}::{case.get('name')}": round(float(case.get("time", 0.0)), 2) for case in cases}
@@ -65,10 +66,10 @@ def run_suite(path):
     wall = time.perf_counter() - start
     lines = done.stdout.strip().splitlines()
     last = lines[-1] if lines else ""
-    found = SUMMARY.search(last)
-    passed, failed, pytest_s = (int(found[1]), int(found[2] or 0), float(found[3])) if found else (0, 0, None)
-    return {"wall_s": round(wall, 1), "pytest_s": pytest_s, "passed": passed, "failed": failed,
-            "returncode": done.returncode, "summary": last, "tests_s": test_seconds(junit) if junit.exists() else {}}
+    counts = {outcome: int(found[1]) if (found := pattern.search(last)) else 0 for outcome, pattern in COUNT.items()}
+    seconds = SECONDS.search(last)
+    return {"wall_s": round(wall, 1), "pytest_s": float(seconds[1]) if seconds else None, **counts,
+            "returncode": done.returncode, "summary": last, "tests_s": seconds_per_test(junit) if junit.exists() else {}}
 
 
 def main():
