@@ -31,7 +31,7 @@ def test_after_a_computation_it_warns_and_changes_nothing(monkeypatch):
     assert os.environ["XLA_FLAGS"] == "--xla_force_host_platform_device_count=2"
 
 
-def test_the_command_line_in_a_running_session_leaves_the_flags_alone(monkeypatch, capsys):
+def test_the_command_line_in_a_running_session_leaves_the_flags_alone(monkeypatch, capsys, tmp_path):
     """``vi_jax.cli.main`` called in-process (a notebook, these tests) keeps the session's flags:
     before, it appended the option for the rest of the process, and later tests in the same worker
     traced the loop option's plans under default XLA (three failed when the files ran in another
@@ -39,6 +39,6 @@ def test_the_command_line_in_a_running_session_leaves_the_flags_alone(monkeypatc
     from vi_jax.cli import main
 
     monkeypatch.setenv("XLA_FLAGS", "")
-    assert main(["simulate", "underwater", "--h", "-1", "--steps", "2", "--out", "/tmp/vi_jax_cli_bad", "--no-progress"]) == 2
+    assert main(["simulate", "underwater", "--h", "-1", "--steps", "2", "--out", str(tmp_path), "--no-progress"]) == 2
     assert os.environ["XLA_FLAGS"] == ""
     assert "h: expected a finite number > 0" in capsys.readouterr().err
