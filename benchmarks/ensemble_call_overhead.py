@@ -1,11 +1,13 @@
 """Fixed cost of a concrete ``vj.ensemble`` call (the host work around its compiled programs):
 the vehicle, 1024 members, h = 0.01, float64, the final node saved, at 4 and at 1000 steps, one
-group of members per core. Peers: the same call with the groups' program lowered and compiled
-anew at every call, as before programs were kept (``vi_jax/engine/_kept_programs.py``), and with
-that and the host work of the version before it too (``a42d569``): member 0 sliced by one
-program per leaf for the input checks, which also checked its group membership before the check
-of every member, and each group's members sliced and padded on the host, one transfer per leaf
-and group. All timed in one process, alternately (41 timings each).
+group of members per core. Peers: the same call with its input values checked leaf by leaf as
+before ``check_values`` (``vi_jax/_validation.py``): a transfer to the host per leaf, then the
+members' group membership by its own program; the same call with the groups' program lowered and
+compiled anew at every call, as before programs were kept (``vi_jax/engine/_kept_programs.py``),
+and with that and the host work of the version before it too (``a42d569``): member 0 sliced by
+one program per leaf for the input checks, which also checked its group membership before the
+check of every member, and each group's members sliced and padded on the host, one transfer per
+leaf and group. All timed in one process, alternately (41 timings each).
 
     python benchmarks/ensemble_call_overhead.py [--fast-loops]
 """
@@ -24,6 +26,7 @@ import numpy as np  # noqa: E402
 
 import vi_jax as vj  # noqa: E402
 from _generated import perturbed_states  # noqa: E402
+from vi_jax import _validation  # noqa: E402
 from vi_jax.engine import _ensemble, _member_groups  # noqa: E402
 from vi_jax.engine._member_split import pad_members  # noqa: E402
 
@@ -50,24 +53,34 @@ def per_leaf_groups(program, dynamic, axes, n_members, steps_per_node, *args, **
     return _member_groups._joined_on_device(parts, n_members)
 
 
+def per_leaf_checks(named, group, g, g_batched=False, tol=1e-6):
+    """The checks as ``vj.ensemble`` made them before ``check_values``."""
+    for name, x, _ in named:
+        _validation.check_finite(name, x)
+    if not float(_validation.membership_error(group, g)) <= tol:
+        raise ValueError("x0.g: expected elements of the group for every member")
+
+
 def compiled_each_call(program, *args, **kwargs):
     return program.lower(*args, **kwargs).compile()
 
 
 def main():
     current = dict(take_member=_ensemble.take_member, on_cores=_ensemble.on_cores, validate_scheme=_ensemble.validate_scheme,
-                   compiled_program=_member_groups.compiled_program)
-    before = dict(current, compiled_program=compiled_each_call)
-    per_leaf = dict(take_member=per_leaf_member, on_cores=per_leaf_groups, compiled_program=compiled_each_call,
-                    validate_scheme=lambda *args, on_group: current["validate_scheme"](*args, on_group=True))
-    modules = dict(take_member=_ensemble, on_cores=_ensemble, validate_scheme=_ensemble, compiled_program=_member_groups)
+                   compiled_program=_member_groups.compiled_program, check_values=_validation.check_values)
+    leaf_checks = dict(current, check_values=per_leaf_checks)
+    before = dict(leaf_checks, compiled_program=compiled_each_call)
+    per_leaf = dict(before, take_member=per_leaf_member, on_cores=per_leaf_groups,
+                    validate_scheme=lambda *args, values: current["validate_scheme"](*args, values=True))
+    modules = dict(take_member=_ensemble, on_cores=_ensemble, validate_scheme=_ensemble, compiled_program=_member_groups, check_values=_validation)
     model = vj.models.UnderwaterVehicle()
     states = perturbed_states(model.initial_state(), MEMBERS)
     assert _member_groups.cores() >= 2, "one group per core needs two cores"
     rows = []
     for steps in (4, 1000):
-        samples = {"this version": [], "compiled each call (before)": [], "per-leaf host work (two before)": []}
-        variants = dict(zip(samples, (current, before, per_leaf)))
+        samples = {"this version": [], "values checked leaf by leaf (before)": [], "and compiled each call (two before)": [],
+                   "and per-leaf host work (three before)": []}
+        variants = dict(zip(samples, (current, leaf_checks, before, per_leaf)))
         for _ in range(1 + REPEATS):  # the first round compiles
             for name, variant in variants.items():
                 for key, fn in variant.items():

@@ -211,7 +211,13 @@ BAD = [
     (dict(system=vary(MODEL, mass=np.full(4, 120.0)), system_axes=0), r"batched leaves must share one member count"),
     (dict(mesh="cpu"), r"mesh: expected a jax.sharding.Mesh, got str"),
     (dict(h=-1.0), r"h: expected a finite number > 0"),
-    (dict(x0=vary(X0, g=np.stack([np.eye(3), 2 * np.eye(3), np.eye(3), np.eye(3), np.eye(3)]))), r"x0.g: expected elements of SO3"),
+    (dict(x0=vary(X0, g=np.stack([np.eye(3), 2 * np.eye(3), np.eye(3), np.eye(3), np.eye(3)]))),
+     r"x0.g: expected elements of SO3 for every member, got membership error 12.2 in members \[1\]$"),
+    (dict(x0=vary(X0, xi=np.where(np.arange(B)[:, None] == 3, np.nan, OMEGAS))),
+     r"x0.xi: expected finite values for every member, got non-finite values in members \[3\]$"),
+    (dict(system=vary(MODEL, mass=np.where(np.arange(B) % 2, np.inf, MASSES)), system_axes=0),
+     r"system parameters: expected finite values for every member, got non-finite values in members \[1, 3\]$"),
+    (dict(system=eqx.tree_at(lambda m: m.inertia, MODEL, jnp.full((3, 3), jnp.nan))), r"system parameters: expected finite values, got \[\[nan"),
 ]
 
 

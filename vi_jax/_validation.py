@@ -92,12 +92,14 @@ def _dtype(leaf):
     return leaf.dtype if hasattr(leaf, "dtype") else np.result_type(leaf)
 
 
+def is_numeric(leaf) -> bool:
+    """Whether ``leaf`` is a float array or a Python float."""
+    return isinstance(leaf, (float, np.ndarray, jax.Array)) and jnp.issubdtype(_dtype(leaf), jnp.inexact)
+
+
 def numeric_leaves(tree):
     """The float leaves (arrays or Python floats) of a pytree."""
-    return [
-        leaf for leaf in jax.tree_util.tree_leaves(tree)
-        if isinstance(leaf, (float, np.ndarray, jax.Array)) and jnp.issubdtype(_dtype(leaf), jnp.inexact)
-    ]
+    return [leaf for leaf in jax.tree_util.tree_leaves(tree) if is_numeric(leaf)]
 
 
 @_eager
@@ -142,6 +144,48 @@ def check_choice(name, value, choices):
 def membership_error(group, g):
     """The largest membership error of ``g``: a group element, or a batch of them (leading axes)."""
     return jnp.max(jax.vmap(group.membership_error)(jnp.reshape(g, (-1,) + jnp.shape(g)[-2:])))
+
+
+def check_values(named, group, g, g_batched=False, tol=1e-6):
+    """``named`` (name, leaf, whether the leaf carries an ensemble's member axis) finite and ``g``
+    (x0.g) on ``group`` (one element per member where ``g_batched``), the error naming the
+    members at fault. The array leaves are reduced where they are, by one program, and a flag per
+    leaf comes to the host (an accelerator's ensemble is not copied to the host to be checked; on
+    CPU as fast as a check per leaf: ``python benchmarks/ensemble_call_overhead.py``); Python
+    numbers are checked on the host. Skipped where a value is traced (as every check here)."""
+    arrays = [entry for entry in named if isinstance(entry[1], (np.ndarray, jax.Array))]
+    if not is_concrete([x for _, x, _ in arrays] + [g]):
+        return
+    for name, x, _ in named:
+        if not isinstance(x, (np.ndarray, jax.Array)) and not np.isfinite(x):
+            raise ValueError(f"{name}: expected finite values, got {_short(x)}")
+    with jax.ensure_compile_time_eval():
+        finite, err = jax.device_get(_value_summary(group, [x for _, x, _ in arrays], g))
+    for (name, x, batched), ok in zip(arrays, finite):
+        if not ok and batched:
+            bad = np.flatnonzero(~np.isfinite(np.asarray(x)).reshape(np.shape(x)[0], -1).all(axis=1))
+            raise ValueError(f"{name}: expected finite values for every member, got non-finite values in members {_first(bad)}")
+        if not ok:
+            raise ValueError(f"{name}: expected finite values, got {_short(x)}")
+    if not err <= tol:
+        kind = type(group).__name__
+        if g_batched:
+            errors = np.asarray(jax.vmap(membership_error, in_axes=(None, 0))(group, g))
+            raise ValueError(
+                f"x0.g: expected elements of {kind} for every member, got membership error {float(err):.3g} "
+                f"in members {_first(np.flatnonzero(~(errors <= tol)))}"
+            )
+        raise ValueError(f"x0.g: expected an element of {kind} (membership error ≤ {tol:g}), got membership error {float(err):.3g} for {_short(g)}")
+
+
+def _first(indices) -> str:
+    return f"{indices[:10].tolist()}{' …' if indices.size > 10 else ''}"
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _value_summary(group, leaves, g):
+    finite = jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]) if leaves else jnp.zeros(0, bool)
+    return finite, membership_error(group, g)
 
 
 @_eager

@@ -10,8 +10,9 @@ tests/test_generated_step.py):
   *component arrays* of shape (members,), so every operation of a step is an elementwise loop
   over the members and XLA fuses a whole Newton iteration into one vectorised loop; unknowns
   with explicit equations are solved before Newton (:func:`~._member_newton.explicit_block`).
-  No path names a model (the vehicle's hand-written step, faster at order 1 on CPU with default
-  XLA flags, is now the benchmarks' peer: ``benchmarks/explicit_block.py``). The plan
+  No path names a model (the vehicle's hand-written step is the benchmarks' peer: at order 1 the
+  generated step runs 1.51–1.58× its rate with default XLA, 1.00–1.03× with the loop option,
+  ``python benchmarks/explicit_block.py [--fast-loops]``). The plan
   follows the platform (:func:`target_platform`): on CPU the members go through chunks of
   ``CHUNK`` one after another (cache-sized), each chunk's loops one kernel
   (:func:`~vi_jax._one_kernel.one_kernel`); on a GPU the whole batch is in every kernel (H100,
@@ -181,17 +182,10 @@ def ensemble(
     (n_members,) = sizes
     if n_members < 1:
         raise ValueError("x0_axes, system_axes: expected at least one member, got 0")
-    h, n_steps, save_every, tau_map, order = validate_scheme(  # the group membership of every member below
-        take_member(system, sys_axes, 0), take_member(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order, on_group=False
+    h, n_steps, save_every, tau_map, order = validate_scheme(  # every member's values below
+        take_member(system, sys_axes, 0), take_member(x0, state_axes, 0), h, n_steps, save_every, scheme, tau, order, values=False
     )
-    val.check_finite("system parameters", val.numeric_leaves(system))
-    val.check_finite("x0", x0)
-    if val.is_concrete(x0.g):
-        G = system.group
-        with jax.ensure_compile_time_eval():
-            err = val.membership_error(G, x0.g)
-        if not float(err) <= 1e-6:
-            raise ValueError(f"x0.g: expected elements of {type(G).__name__} for every member, got membership error {float(err):.3g}")
+    val.check_values(_named_values(system, x0, sys_axes, state_axes), system.group, x0.g, state_axes.g == 0)
     batched = None
     if scheme == "dep" and method != "vmap":
         batched = "generated"
@@ -295,6 +289,15 @@ def _opaque(dynamic, h):
     members closed over, 1.07-1.10x slower with it: ``python benchmarks/closed_over_inputs.py
     --members 1048576 --steps 238 --scenes heavy_top rigid_body [--order 2]``)."""
     return jax.lax.optimization_barrier((dynamic, h))
+
+
+def _named_values(system, x0, sys_axes, state_axes):
+    """(name, leaf, whether it carries the member axis) for x0's fields and the scene's float
+    parameters, named as ``vj.simulate``'s checks name them."""
+    is_none = lambda x: x is None  # noqa: E731
+    fields = [(f"x0.{k}", getattr(x0, k), getattr(state_axes, k) == 0) for k in ("g", "xi", "q", "qdot") if getattr(x0, k) is not None]
+    leaves = zip(jax.tree.leaves(system, is_leaf=is_none), jax.tree.leaves(sys_axes, is_leaf=is_none), strict=True)
+    return fields + [("system parameters", leaf, ax == 0) for leaf, ax in leaves if val.is_numeric(leaf)]
 
 
 def _cast(x0, dtype):

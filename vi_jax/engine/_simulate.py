@@ -34,8 +34,8 @@ def _default_rtol(dtype):
     return float(64 * jnp.finfo(dtype).eps)
 
 
-def _validate(system, x0, h, n_steps, tau, order, save_every, on_group=True):
-    h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every, on_group)
+def _validate(system, x0, h, n_steps, tau, order, save_every, values=True):
+    h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every, values)
     val.check_choice("order", order, ORDERS)
     return h, n_steps, save_every, difference_map(tau)
 
@@ -48,17 +48,17 @@ def _node_diagnostics(system, states, rtol, max_iter):
 SCHEMES = ("dep", "splitting")
 
 
-def validate_scheme(system, x0, h, n_steps, save_every, scheme, tau, order, on_group=True):
+def validate_scheme(system, x0, h, n_steps, save_every, scheme, tau, order, values=True):
     """Input checks and the scheme's defaults: (h, n_steps, save_every, τ map (None for the
-    splitting), order); ``on_group``: :func:`validate_inputs`'."""
+    splitting), order); ``values``: :func:`validate_inputs`'."""
     val.check_choice("scheme", scheme, SCHEMES)
     if scheme == "splitting":
         if tau is not None:
             raise ValueError(f"tau: applies to scheme='dep' only (the splitting has no difference map), got {tau!r}")
-        h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every, on_group)
+        h, n_steps, save_every = validate_inputs(system, x0, h, n_steps, save_every, values)
         return h, n_steps, save_every, None, val.check_choice("order", 2 if order is None else order, SPLITTING_ORDERS)
     order = 1 if order is None else order
-    h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau or "cayley", order, save_every, on_group)
+    h, n_steps, save_every, tau = _validate(system, x0, h, n_steps, tau or "cayley", order, save_every, values)
     return h, n_steps, save_every, tau, order
 
 

@@ -84,9 +84,10 @@ def node_invariants(system, g, q, M, P, xi, nu):
     return energy, kn, kn_scale
 
 
-def validate_inputs(system, x0, h, n_steps, save_every, on_group=True):
-    """Checks every scheme makes: the scene, x0 on the group and finite, h > 0, step counts
-    (``on_group=False``: x0.g's membership left to the caller, e.g. checked for every member)."""
+def validate_inputs(system, x0, h, n_steps, save_every, values=True):
+    """Checks every scheme makes: the scene, x0's shapes, h > 0, step counts and, with
+    ``values``, x0 on the group and every float value finite (``values=False``: left to the
+    caller, e.g. checked for every member of an ensemble by :func:`~vi_jax._validation.check_values`)."""
     if not isinstance(system, AbstractSystem):
         raise ValueError(f"system: expected a vi_jax system (AbstractSystem), got {type(system).__name__}")
     if not isinstance(x0, State):
@@ -95,9 +96,9 @@ def validate_inputs(system, x0, h, n_steps, save_every, on_group=True):
     d, r = G.matrix_size, G.dim
     g0 = val.as_array("x0.g", x0.g, (d, d))
     xi0 = val.as_array("x0.xi", x0.xi, (r,))
-    val.check_finite("x0.g", g0)
-    val.check_finite("x0.xi", xi0)
-    if on_group:
+    if values:
+        val.check_finite("x0.g", g0)
+        val.check_finite("x0.xi", xi0)
         val.check_on_group("x0.g", G, g0)
     if system.has_additional:
         if x0.q is None or x0.qdot is None:
@@ -105,11 +106,13 @@ def validate_inputs(system, x0, h, n_steps, save_every, on_group=True):
         m = jnp.shape(x0.q)[-1] if jnp.ndim(x0.q) else None
         val.as_array("x0.q", x0.q, (m,))
         val.as_array("x0.qdot", x0.qdot, (m,))
-        val.check_finite("x0.q", x0.q)
-        val.check_finite("x0.qdot", x0.qdot)
+        if values:
+            val.check_finite("x0.q", x0.q)
+            val.check_finite("x0.qdot", x0.qdot)
     elif x0.q is not None or x0.qdot is not None:
         raise ValueError("x0: this system has no additional dynamics; expected x0.q = x0.qdot = None")
-    val.check_finite("system parameters", val.numeric_leaves(system))
+    if values:
+        val.check_finite("system parameters", val.numeric_leaves(system))
     h = val.check_positive_scalar("h", h)
     n_steps, save_every = val.check_steps(n_steps, save_every)
     return h, n_steps, save_every
