@@ -3,8 +3,11 @@ member-steps per second for 1, 64, 1024 and 8192 members.
 
     python benchmarks/ensemble.py [--members 1 64 1024 8192] [--out benchmarks/results/ensemble.json]
 
-Implementations, timed in one process per XLA configuration (compiled code only, median of
-repeats; final state returned, so saving costs nothing):
+Implementations, timed in one process per XLA configuration (compiled code only; final state
+returned, so saving costs nothing), alternately: one call of each per round, the median of 7
+rounds (3 above 2·10⁷ member-steps a call), so that the peers share the machine's load (timed
+one after another, the fastest call's five runs took 70 ms against the peer's 1.3 s: a busy
+moment fell on one of them):
 
 - ``plain vmap, hand step``: ``jax.vmap`` of the hand-specialised step of tests/hand_vehicle.py
   (eqs. 73–74 with 88, 3×3 matrices, three Newton iterations) — the peer;
@@ -29,8 +32,10 @@ otherwise idle core would give).
 """
 
 import argparse
+import functools
 import json
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -56,7 +61,7 @@ def measure(members_list, config):
 
     sys.path.insert(0, str(HERE))
     sys.path.insert(0, str(HERE.parent / "tests"))
-    from _timing import time_compiled
+    from _timing import alternate_samples
     from hand_vehicle import make_step, vehicle_params
 
     model = vj.models.UnderwaterVehicle()
@@ -116,16 +121,19 @@ def measure(members_list, config):
                     states,
                 ),
             }
-        outputs = {}
+        outputs, first = {}, {}
         for name, (fn, arg) in impls.items():
-            repeats = 3 if n * n_steps * (20 if "simulate" in name else 1) > 2e7 else 5
-            first, median, out = time_compiled(fn, arg, repeats=repeats)
+            start = time.perf_counter()
+            outputs[name] = np.asarray(jax.block_until_ready(fn(arg)))
+            first[name] = time.perf_counter() - start
+        samples = alternate_samples({name: functools.partial(fn, arg) for name, (fn, arg) in impls.items()}, 3 if n * n_steps > 2e7 else 7)
+        for name, (fn, arg) in impls.items():
+            median = statistics.median(samples[name])
             c0, t0 = time.process_time(), time.perf_counter()
             jax.block_until_ready(fn(arg))
             cpu, wall = time.process_time() - c0, time.perf_counter() - t0
-            outputs[name] = np.asarray(out)
             rows.append(dict(
-                config=config, members=n, steps=n_steps, implementation=name, compile_and_first_s=first,
+                config=config, members=n, steps=n_steps, implementation=name, compile_and_first_s=first[name],
                 median_s=median, rate=n * n_steps / median, cpu_rate=n * n_steps / cpu, cpu_over_wall=cpu / wall,
             ))
             print(f"  [{config}] {n:5d} members  {name:28s} {n * n_steps / median / 1e6:8.3f} M member-steps/s", file=sys.stderr, flush=True)
