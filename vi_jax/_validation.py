@@ -151,14 +151,16 @@ def check_values(named, group, g, g_batched=False, tol=1e-6):
     (x0.g) on ``group`` (one element per member where ``g_batched``), the error naming the
     members at fault. The array leaves are reduced where they are, by one program, and a flag per
     leaf comes to the host (an accelerator's ensemble is not copied to the host to be checked; on
-    CPU as fast as a check per leaf: ``python benchmarks/ensemble_call_overhead.py``); Python
-    numbers are checked on the host. Skipped where a value is traced (as every check here)."""
+    CPU as fast as a check per leaf: ``python benchmarks/ensemble_call_overhead.py``), the error
+    messages of a leaf or ``g`` without the member axis those of :func:`check_finite` and
+    :func:`check_on_group`. Python numbers are checked on the host, the arrays only where they
+    are concrete (as every check here)."""
     arrays = [entry for entry in named if isinstance(entry[1], (np.ndarray, jax.Array))]
+    for name, x, _ in named:
+        if not isinstance(x, (np.ndarray, jax.Array)):
+            check_finite(name, x)
     if not is_concrete([x for _, x, _ in arrays] + [g]):
         return
-    for name, x, _ in named:
-        if not isinstance(x, (np.ndarray, jax.Array)) and not np.isfinite(x):
-            raise ValueError(f"{name}: expected finite values, got {_short(x)}")
     with jax.ensure_compile_time_eval():
         finite, err = jax.device_get(_value_summary(group, [x for _, x, _ in arrays], g))
     for (name, x, batched), ok in zip(arrays, finite):
@@ -166,16 +168,15 @@ def check_values(named, group, g, g_batched=False, tol=1e-6):
             bad = np.flatnonzero(~np.isfinite(np.asarray(x)).reshape(np.shape(x)[0], -1).all(axis=1))
             raise ValueError(f"{name}: expected finite values for every member, got non-finite values in members {_first(bad)}")
         if not ok:
-            raise ValueError(f"{name}: expected finite values, got {_short(x)}")
+            check_finite(name, x)
+    if not err <= tol and g_batched:
+        errors = np.asarray(jax.vmap(membership_error, in_axes=(None, 0))(group, g))
+        raise ValueError(
+            f"x0.g: expected elements of {type(group).__name__} for every member, got membership error {float(err):.3g} "
+            f"in members {_first(np.flatnonzero(~(errors <= tol)))}"
+        )
     if not err <= tol:
-        kind = type(group).__name__
-        if g_batched:
-            errors = np.asarray(jax.vmap(membership_error, in_axes=(None, 0))(group, g))
-            raise ValueError(
-                f"x0.g: expected elements of {kind} for every member, got membership error {float(err):.3g} "
-                f"in members {_first(np.flatnonzero(~(errors <= tol)))}"
-            )
-        raise ValueError(f"x0.g: expected an element of {kind} (membership error ≤ {tol:g}), got membership error {float(err):.3g} for {_short(g)}")
+        check_on_group("x0.g", group, g, tol)
 
 
 def _first(indices) -> str:
