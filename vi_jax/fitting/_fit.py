@@ -48,7 +48,7 @@ from ._initial_states import estimate_states
 from ._levenberg_marquardt import levenberg_marquardt
 from ._observations import Observations
 from ._parametrisation import FreeParameters, Parametrisation
-from ._robust import LOSSES
+from ._robust import LOSSES, loss_index
 from ._shooting import STATE_SIZE, Layout, residuals_and_jacobian, samples_of, start_state
 from ._telemetry import CHANNELS, Telemetry
 
@@ -143,7 +143,7 @@ class _Problem(eqx.Module):
     samples: tuple
     R_ref: jax.Array
     weight: jax.Array
-    loss: str = eqx.field(static=True)
+    loss: jax.Array  # the index of the loss in LOSSES, traced: one program for every loss
     tau: str = eqx.field(static=True)
     order: int = eqx.field(static=True)
 
@@ -319,7 +319,7 @@ def fit(
     for n_seg, weight in plan:
         if n_seg == 1:
             layout, states, R_ref = Layout(t, t0, h, 1, n_steps), states[:1], R_ref[:1]
-        problem = _Problem(model_of, layout, samples, jnp.asarray(R_ref), jnp.asarray(weight), loss, tau, order)
+        problem = _Problem(model_of, layout, samples, jnp.asarray(R_ref), jnp.asarray(weight), jnp.asarray(loss_index(loss)), tau, order)
         stage_starts.append(len(history))
         z = jnp.concatenate([theta, jnp.asarray(states).ravel()])
         label = "single shooting" if n_seg == 1 else f"{n_seg} segments, w={weight:g}"

@@ -9,6 +9,7 @@ Each is r·w(r) with w smooth and w(0) = 1, written with the double-``where`` tr
 values and gradients are finite at r = 0.
 """
 
+import jax
 import jax.numpy as jnp
 
 LOSSES = ("squared", "huber", "cauchy")
@@ -18,18 +19,37 @@ HUBER_K = 1.345
 CAUCHY_C = 2.3849
 
 
+def _squared(r):
+    return r
+
+
+def _huber(r):
+    inside = jnp.abs(r) <= HUBER_K
+    safe = jnp.where(inside, 1.0, jnp.abs(r))
+    return r * jnp.where(inside, 1.0, jnp.sqrt(2 * HUBER_K * safe - HUBER_K**2) / safe)
+
+
+def _cauchy(r):
+    u2 = (r / CAUCHY_C) ** 2
+    small = u2 < 1e-8
+    safe = jnp.where(small, 1.0, u2)
+    return r * jnp.where(small, 1 - u2 / 4, jnp.sqrt(jnp.log1p(safe) / safe))
+
+
+_TRANSFORMS = (_squared, _huber, _cauchy)
+
+
+def loss_index(loss) -> int:
+    """The position of the loss named ``loss`` in ``LOSSES``."""
+    if loss not in LOSSES:
+        raise ValueError(f"loss: expected one of {LOSSES}, got {loss!r}")
+    return LOSSES.index(loss)
+
+
 def robust_residuals(r, loss):
-    """r̃ = r·w(r) for the named loss (see the module docstring)."""
-    if loss == "squared":
-        return r
-    a = jnp.abs(r)
-    if loss == "huber":
-        inside = a <= HUBER_K
-        safe = jnp.where(inside, 1.0, a)
-        return r * jnp.where(inside, 1.0, jnp.sqrt(2 * HUBER_K * safe - HUBER_K**2) / safe)
-    if loss == "cauchy":
-        u2 = (r / CAUCHY_C) ** 2
-        small = u2 < 1e-8
-        safe = jnp.where(small, 1.0, u2)
-        return r * jnp.where(small, 1 - u2 / 4, jnp.sqrt(jnp.log1p(safe) / safe))
-    raise ValueError(f"loss: expected one of {LOSSES}, got {loss!r}")
+    """r̃ = r·w(r) for the loss ``loss`` (see the module docstring): a name of ``LOSSES``, or its
+    index there as an integer array, which may be traced (the fit's programs take it so: one
+    program serves every loss)."""
+    if isinstance(loss, str):
+        return _TRANSFORMS[loss_index(loss)](r)
+    return jax.lax.switch(loss, _TRANSFORMS, r)
