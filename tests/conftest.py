@@ -36,6 +36,7 @@ if _CACHE_OWNER:  # the controller (or a run without xdist); the workers inherit
         os.environ["XLA_FLAGS"] = flags
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 # Set here and as environment variables, which JAX reads at import: the tests' subprocesses
@@ -53,6 +54,22 @@ for _name, _value in _CACHE_SETTINGS.items():
 # (``vi_jax.cli.main``, which asks for the loop option in its own process) then leaves XLA_FLAGS,
 # and with them the plans of every later test in this worker, as they are.
 jax.devices()
+
+
+@pytest.fixture
+def fresh_programs():
+    """For a test that switches something read at trace time: ``jax.clear_caches()`` before the
+    test, at each call of the returned function (the next call traces anew) and after the test (no
+    other test reuses a program traced with the switch)."""
+    jax.clear_caches()
+    yield jax.clear_caches
+    jax.clear_caches()
+
+
+def pytest_collection_modifyitems(items):
+    """The tests using :func:`fresh_programs` run last: a clear drops every program its worker has
+    traced, and the tests after it would trace them again."""
+    items.sort(key=lambda item: "fresh_programs" in item.fixturenames)
 
 
 def pytest_unconfigure(config):

@@ -36,16 +36,15 @@ def _states(x0, n, seed):
 
 
 @pytest.fixture
-def carry_factors(monkeypatch):
+def carry_factors(monkeypatch, fresh_programs):
     """Sets ``CARRY_FACTORS``; it is read at trace time, so compiled programs are dropped on each
     switch and after the test (no other test may reuse a program traced with it forced)."""
 
     def switch(value):
         monkeypatch.setattr(_generated_step, "CARRY_FACTORS", value)
-        jax.clear_caches()
+        fresh_programs()
 
-    yield switch
-    jax.clear_caches()
+    return switch
 
 
 def test_factors_are_carried_where_the_jacobian_costs_most():

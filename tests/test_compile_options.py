@@ -88,7 +88,7 @@ def test_ensemble_with_its_options_equals_ensemble_without(monkeypatch):
             np.testing.assert_array_equal(a, b)
 
 
-def test_concrete_calls_trace_newton_without_its_gradient_rule(monkeypatch):
+def test_concrete_calls_trace_newton_without_its_gradient_rule(monkeypatch, fresh_programs):
     """A concrete call's programs (concrete inputs: nothing can differentiate them) trace no
     ``custom_root``, whose tangent solve would be traced for nothing; under ``jit`` the same
     functions keep it (gradient tests: tests/test_gradients.py). The values are the same: the
@@ -97,7 +97,7 @@ def test_concrete_calls_trace_newton_without_its_gradient_rule(monkeypatch):
     bound = []
     real = jax.lax.custom_root
     monkeypatch.setattr(jax.lax, "custom_root", lambda *args, **kwargs: bound.append(1) or real(*args, **kwargs))
-    jax.clear_caches()  # trace the programs anew
+    fresh_programs()  # trace the programs anew
     model = vj.models.HeavyTop()
     x0 = model.initial_state()
     states = vj.vary(x0, xi=np.asarray(x0.xi) * (1 + 0.1 * np.linspace(0, 1, 8))[:, None])
@@ -110,10 +110,9 @@ def test_concrete_calls_trace_newton_without_its_gradient_rule(monkeypatch):
     for a, b in ((concrete, traced), (concrete_members, traced_members)):
         for field in ("g", "xi", "M", "energy"):
             np.testing.assert_allclose(getattr(a, field), getattr(b, field), rtol=1e-11, atol=1e-11)
-    jax.clear_caches()
 
 
-def test_the_fit_jacobian_keeps_newtons_gradient_rule(monkeypatch):
+def test_the_fit_jacobian_keeps_newtons_gradient_rule(monkeypatch, fresh_programs):
     """The fit's residual-and-Jacobian program is compiled as a concrete call's programs are
     (the elemental emitters where this XLA has them; the fit tests check what it computes), but
     it differentiates inside itself: traced outside any transformation it keeps Newton's
@@ -133,7 +132,6 @@ def test_the_fit_jacobian_keeps_newtons_gradient_rule(monkeypatch):
     bound = []
     real = jax.lax.custom_root
     monkeypatch.setattr(jax.lax, "custom_root", lambda *a, **k: bound.append(1) or real(*a, **k))
-    jax.clear_caches()  # trace the program anew
+    fresh_programs()  # trace the program anew
     residuals_and_jacobian.lower(*args)
     assert bound
-    jax.clear_caches()

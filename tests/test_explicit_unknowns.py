@@ -59,17 +59,16 @@ def _scene(name):
 
 
 @pytest.fixture
-def newton_on_every_unknown(monkeypatch):
+def newton_on_every_unknown(monkeypatch, fresh_programs):
     """A switch to Newton on every unknown. The switch is read at trace time and programs are
     cached by their arguments, which it does not change: compiled programs are dropped on the
     switch (the next call traces anew) and after the test (no other test reuses one)."""
 
     def switch():
         monkeypatch.setattr(_advance, "explicit_unknowns", lambda *args: None)
-        jax.clear_caches()
+        fresh_programs()
 
-    yield switch
-    jax.clear_caches()
+    return switch
 
 
 def _found(system, x0, order):

@@ -68,7 +68,7 @@ def test_folded_zeros_take_work_out_of_the_step():
     assert counts[True][0] < counts[False][0] and counts[True][1] < counts[False][1], counts
 
 
-def test_known_scenes_fold_their_zeros(monkeypatch):
+def test_known_scenes_fold_their_zeros(monkeypatch, fresh_programs):
     """The step is traced with the scene's zeros where its values are known (``FOLD_ZEROS``): in
     a concrete call and under a ``jit`` that closes over the scene; not where the scene is
     traced (a ``jit`` argument: differentiable), nor with the switch off."""
@@ -89,13 +89,12 @@ def test_known_scenes_fold_their_zeros(monkeypatch):
         monkeypatch.setattr(_ensemble, "FOLD_ZEROS", switch)
         finals = {}
         for name, call in calls.items():
-            jax.clear_caches()  # traced afresh
+            fresh_programs()  # traced afresh
             folded.clear()
             finals[name] = np.asarray(call())[:, -1]
             assert folded == ([(OFF_DIAGONAL,)] if switch and name != "traced" else []), (switch, name)
         for name in ("concrete", "closed over"):  # Newton's tolerance 64ε a step, 8 steps
             np.testing.assert_allclose(finals[name], finals["traced"], rtol=0, atol=4 * 64 * EPS * np.sqrt(8))
-    jax.clear_caches()
 
 
 def test_each_pattern_of_zeros_gets_its_program_and_simulate_values():

@@ -126,7 +126,7 @@ def _states(x0, seed):
 
 
 @pytest.mark.parametrize("name", list(SCENES))
-def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
+def test_generated_step_equals_simulate_member_by_member(name, monkeypatch, fresh_programs):
     """Every member equals its own ``vj.simulate`` run: the same scheme and Newton iteration on
     component arrays, so each step may stop at an iterate that differs within Newton's
     tolerance 64ε (a random walk of √n such steps, with a factor 4 for its tail). A fresh
@@ -137,7 +137,7 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     from vi_jax.engine import _generated_step
 
     monkeypatch.setattr(_generated_step, "CARRY_FACTORS", False)
-    jax.clear_caches()  # the switch is read at trace time
+    fresh_programs()  # the switch is read at trace time
     system, x0, tau, order, h = _scene(name)
     n_steps, save_every = 120, 8
     states = _states(x0, 1)
@@ -154,7 +154,6 @@ def test_generated_step_equals_simulate_member_by_member(name, monkeypatch):
     kn = np.asarray(sol.kelvin_noether).reshape(N_MEMBERS, n_steps // save_every + 1, -1)
     scale = np.asarray(sol.kelvin_noether_scale).reshape(N_MEMBERS, -1).max(axis=1)
     assert np.all(np.max(np.abs(kn - kn[:, :1]), axis=(1, 2)) <= 1e-12 * scale)
-    jax.clear_caches()
 
 
 def test_generated_step_has_no_small_dense_algebra():
@@ -224,7 +223,7 @@ def test_looped_and_traced_generated_runs_agree():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-14)
 
 
-def test_newton_starts_from_the_extrapolated_velocity(monkeypatch):
+def test_newton_starts_from_the_extrapolated_velocity(monkeypatch, fresh_programs):
     """A single-stage step starts Newton from 2ξ_k − ξ_{k−1} (error O(h²)) instead of ξ_k (O(h)):
     the heavy top at h = 0.01 (order 2) needs Newton's fallback iterations (more than one Newton
     and two chord steps) in about 40% of its member-steps from ξ_k and in almost none from the
@@ -238,7 +237,7 @@ def test_newton_starts_from_the_extrapolated_velocity(monkeypatch):
     fallback, runs = {}, {}
     for extrapolated in (False, True):
         monkeypatch.setattr(_generated_step, "PREDICT", extrapolated)
-        jax.clear_caches()  # the switch is read at trace time
+        fresh_programs()  # the switch is read at trace time
         runs[extrapolated] = vj.ensemble(model, states, h, n_steps, order=2, method="batched")
         fallback[extrapolated] = np.mean(np.asarray(runs[extrapolated].newton_iterations)[:, 1:] > 3)
     assert fallback[False] >= 0.2 and fallback[True] <= fallback[False] / 20, fallback
@@ -247,7 +246,6 @@ def test_newton_starts_from_the_extrapolated_velocity(monkeypatch):
     rtol = 4 * 64 * EPS * np.sqrt(n_steps)
     for sol in runs.values():
         assert np.max(np.abs(np.asarray(sol.g[0]) - np.asarray(ref.g))) <= rtol
-    jax.clear_caches()
 
 
 def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
@@ -272,18 +270,15 @@ def test_accelerator_plan_equals_the_cpu_plan(monkeypatch):
     assert np.all(np.asarray(plans["gpu"].newton_iterations)[:, 1:] >= COMMON_PATH)
 
 
-def _accelerator_plan_runs(monkeypatch, run, speculative):
+def _accelerator_plan_runs(monkeypatch, fresh_programs, run, speculative):
     """``run()`` on the accelerator plan, with the speculative step or with Newton's fallback
     inside the step, traced afresh."""
     from vi_jax.engine import _ensemble, _generated_step
 
     monkeypatch.setattr(_ensemble, "target_platform", lambda mesh=None: "gpu")
     monkeypatch.setattr(_generated_step, "SPECULATIVE", speculative)
-    jax.clear_caches()  # the switches are read at trace time
-    try:
-        return run()
-    finally:
-        jax.clear_caches()
+    fresh_programs()  # the switches are read at trace time
+    return run()
 
 
 def _hard_heavy_top_states():
@@ -294,7 +289,7 @@ def _hard_heavy_top_states():
     return system, vj.vary(x0, xi=np.asarray(x0.xi) + 0.5 * np.random.default_rng(0).normal(size=(16, 3)))
 
 
-def test_speculative_accelerator_step_equals_the_step_with_its_fallback(monkeypatch):
+def test_speculative_accelerator_step_equals_the_step_with_its_fallback(monkeypatch, fresh_programs):
     """The accelerator plan's speculative step (every member without Newton's fallback, then
     the whole step again where one member needs it; two steps per loop iteration, 9 steps per
     node: an odd remainder) against the step with the fallback inside, under ``jit``: steps that
@@ -303,7 +298,7 @@ def test_speculative_accelerator_step_equals_the_step_with_its_fallback(monkeypa
     system, states = _hard_heavy_top_states()
     n_steps = 180
     run = jax.jit(lambda s: vj.ensemble(system, s, 0.02, n_steps, save_every=9, throw=False))
-    ours, theirs = (_accelerator_plan_runs(monkeypatch, lambda: run(states), spec) for spec in (True, False))
+    ours, theirs = (_accelerator_plan_runs(monkeypatch, fresh_programs, lambda: run(states), spec) for spec in (True, False))
     iterations = np.asarray(theirs.newton_iterations)[:, 1:]
     assert 0.05 < np.mean(iterations > 3) < 0.95  # nodes with and without the fallback
     assert np.all(np.asarray(ours.result) == 0) and np.all(np.asarray(theirs.result) == 0)
@@ -314,7 +309,7 @@ def test_speculative_accelerator_step_equals_the_step_with_its_fallback(monkeypa
         assert np.max(np.abs(a - b)) <= rtol * max(np.max(np.abs(b)), 1.0), field
 
 
-def test_speculative_accelerator_step_differentiates_as_the_step_with_its_fallback(monkeypatch):
+def test_speculative_accelerator_step_differentiates_as_the_step_with_its_fallback(monkeypatch, fresh_programs):
     """Reverse mode through the speculative step (a loop of traced length, which has no reverse
     mode of its own) is reverse mode through the step with the fallback inside, for the scene's
     parameters and h alike (one program each way); and it matches central differences in h."""
@@ -326,7 +321,7 @@ def test_speculative_accelerator_step_differentiates_as_the_step_with_its_fallba
         return jnp.sum(sol.xi[:, -1] ** 2) + jnp.sum(sol.g[:, -1])
 
     grad = eqx.filter_jit(eqx.filter_grad(loss))  # h an array: differentiated with the parameters
-    ours, theirs = (_accelerator_plan_runs(monkeypatch, lambda: grad((system, jnp.asarray(0.02))), spec) for spec in (True, False))
+    ours, theirs = (_accelerator_plan_runs(monkeypatch, fresh_programs, lambda: grad((system, jnp.asarray(0.02))), spec) for spec in (True, False))
     for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(theirs)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12)
     eps = 1e-6
@@ -350,7 +345,7 @@ def test_only_the_cpu_plan_hides_the_inputs_behind_a_barrier(monkeypatch):
         assert ("optimization_barrier" in jaxpr) == ("vi_jax_one_kernel" in jaxpr) == barrier
 
 
-def test_members_run_in_balanced_chunks(monkeypatch):
+def test_members_run_in_balanced_chunks(monkeypatch, fresh_programs):
     """On the CPU plan ``CHUNK`` + 9 members run as two equal chunks (the second padded): the
     members on both sides of the seam and the last one equal their own ``vj.simulate`` runs."""
     from vi_jax.engine import _ensemble, _member_groups
@@ -370,7 +365,7 @@ def test_members_run_in_balanced_chunks(monkeypatch):
 
     monkeypatch.setattr(_ensemble, "in_chunks", in_chunks)
     monkeypatch.setattr(_member_groups, "cores", lambda: 1)  # one program for all members, on any machine
-    jax.clear_caches()  # in_chunks is read at trace time
+    fresh_programs()  # in_chunks is read at trace time
     system, x0, tau, order, h = _scene("rigid body, exp, order 1")
     n, n_steps, save_every = CHUNK + 9, 40, 8
     states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.1 * np.random.default_rng(3).normal(size=(n, 3)))
@@ -382,10 +377,9 @@ def test_members_run_in_balanced_chunks(monkeypatch):
         for field in ("g", "xi", "M"):
             ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
             assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * np.max(np.abs(theirs)), (k, field)
-    jax.clear_caches()
 
 
-def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
+def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch, fresh_programs):
     """Rows of the Jacobian affine in the unknowns (coefficients shared by all members, or per
     member but independent of the unknowns: read from the Jacobian's jaxpr) and zero outside as
     many unknowns are solved first, exactly; Newton runs on the rest. The vehicle at order 1:
@@ -411,7 +405,7 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
         return newton(fn, z0, **kwargs)
 
     monkeypatch.setattr(_member_newton, "newton_members", spy)
-    jax.clear_caches()  # traced afresh, through the spy
+    fresh_programs()  # traced afresh, through the spy
     system = vj.models.UnderwaterVehicle()
     states = _states(system.initial_state(), 4)
     masses = system.mass * (1 + 0.02 * np.arange(N_MEMBERS))
@@ -427,7 +421,6 @@ def test_unknowns_with_explicit_equations_are_solved_before_newton(monkeypatch):
                 ours, theirs = np.asarray(getattr(sol, field)[k]), np.asarray(getattr(ref, field))
                 assert np.max(np.abs(ours - theirs)) <= 4 * 64 * EPS * np.sqrt(n_steps) * max(np.max(np.abs(theirs)), 1.0), field
             assert_first_converged_iterations_match(ref.newton_iterations, sol.newton_iterations[k])  # checked chord steps
-    jax.clear_caches()
 
     def block_of(order):  # traced only
         axes = (jax.tree.map(lambda _: None, system), jax.tree.map(lambda _: 0, states))

@@ -25,11 +25,7 @@ class Lowering:
         return self.program.lower(*args, **kwargs)
 
 
-@pytest.fixture(autouse=True)
-def no_kept_programs():
-    jax.clear_caches()
-    yield
-    jax.clear_caches()
+pytestmark = pytest.mark.usefixtures("fresh_programs")  # no kept programs before or after
 
 
 def test_same_signature_runs_the_kept_program():

@@ -137,7 +137,7 @@ def test_only_differentiation_sees_the_checkpoints():
 
 
 @pytest.mark.parametrize("save_every", [1, 3, SAVE_BLOCK + 1])
-def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_plan(monkeypatch, save_every):
+def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_plan(monkeypatch, save_every, fresh_programs):
     """``checkpoint=True`` on XLA:CPU's default loop plan rematerialises every step by itself, in
     blocks whose largest leaf fits ``SEQUENTIAL_BYTES`` (reverse mode through a scan otherwise
     keeps a buffer of the run's length for each of a step's intermediate values, and a loop body
@@ -163,7 +163,7 @@ def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_pl
     def traced(flags, checkpoint=True):
         monkeypatch.setenv("XLA_FLAGS", flags)
         blocks.clear(), remat.clear()
-        jax.clear_caches()  # the plan is chosen at trace time
+        fresh_programs()  # the plan is chosen at trace time
         loss = lambda m: jnp.sum(vj.simulate(m, x0, 0.01, 2 * save_every, save_every=save_every, checkpoint=checkpoint).q)  # noqa: E731
         jax.make_jaxpr(lambda m: jax.jvp(loss, (m,), (m,)))(model)  # the plan is chosen in the JVP rule
         return list(blocks)
@@ -181,7 +181,7 @@ def test_checkpointed_steps_are_rematerialised_one_by_one_on_the_default_loop_pl
 
 
 @pytest.mark.parametrize("save_every", [1, 10, SAVE_BLOCK + 1])
-def test_checkpoint_leaves_a_program_that_does_not_differentiate_unchanged(monkeypatch, save_every):
+def test_checkpoint_leaves_a_program_that_does_not_differentiate_unchanged(monkeypatch, save_every, fresh_programs):
     """``checkpoint=True`` changes what reverse mode stores, never the forward program: under
     ``jit`` without differentiation ``vj.simulate`` lowers to the same program as with
     ``checkpoint=False``, on every loop plan (each step, each node rematerialised)."""
@@ -189,7 +189,7 @@ def test_checkpoint_leaves_a_program_that_does_not_differentiate_unchanged(monke
 
     def lowered(flags, checkpoint):
         monkeypatch.setenv("XLA_FLAGS", flags)
-        jax.clear_caches()  # the plan is chosen at trace time
+        fresh_programs()  # the plan is chosen at trace time
         run = lambda m: vj.simulate(m, x0, 0.01, 2 * save_every, save_every=save_every, checkpoint=checkpoint).q  # noqa: E731
         return jax.jit(run).lower(model).as_text(debug_info=False)
 
@@ -217,7 +217,7 @@ def test_traced_runs_equal_the_concrete_run_around_block_boundaries(n_steps):
     assert_rolled_iterations_match(concrete.newton_iterations, traced.newton_iterations)
 
 
-def test_the_loop_option_plan_puts_the_initial_state_first_without_a_copy(monkeypatch):
+def test_the_loop_option_plan_puts_the_initial_state_first_without_a_copy(monkeypatch, fresh_programs):
     """With the loop option and every step saved, the traced run scans one more node whose first
     keeps the initial state (:func:`vi_jax.engine._advance._initial_node_first`) instead of
     copying it in front of the nodes: the same Solution as the default plan's (to Newton's
@@ -229,7 +229,7 @@ def test_the_loop_option_plan_puts_the_initial_state_first_without_a_copy(monkey
 
     def run(flags, checkpoint=True):
         monkeypatch.setenv("XLA_FLAGS", flags)
-        jax.clear_caches()
+        fresh_programs()
 
         def loss(xi):
             sol = vj.simulate(model, vj.State(x0.g, xi, x0.q, x0.qdot), 0.01, n_steps, checkpoint=checkpoint)

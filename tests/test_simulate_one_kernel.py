@@ -76,7 +76,7 @@ def test_differentiation_runs_the_default_plan():
 
 
 @pytest.mark.parametrize("name", list(SCENES))
-def test_values_are_the_default_plans_to_round_off(name, monkeypatch):
+def test_values_are_the_default_plans_to_round_off(name, monkeypatch, fresh_programs):
     """The same steps in one kernel and thread per fusion: XLA may contract or vectorise their
     arithmetic differently, each step's rounding then differs by a few ulps, and over a bounded
     motion those differences grow at most linearly: 8 ulps per step of each array's scale."""
@@ -85,7 +85,7 @@ def test_values_are_the_default_plans_to_round_off(name, monkeypatch):
     run = lambda m, x: vj.simulate(m, x, 0.01, n, throw=False)  # noqa: E731
     one = jax.jit(run)(system, x0)
     monkeypatch.setattr(_advance, "in_one_kernel", lambda program: program)
-    jax.clear_caches()  # vj.simulate's traced programs are cached by their arguments
+    fresh_programs()  # vj.simulate's traced programs are cached by their arguments
     assert _regions_in_jaxpr(run, system, x0) == 0
     default = jax.jit(run)(system, x0)
     for field in ("g", "xi", "q", "M", "P", "energy"):

@@ -106,15 +106,14 @@ LONG_RUNS = {
 
 @pytest.mark.parametrize("scene", list(LONG_RUNS))
 @pytest.mark.parametrize("polynomial_plan", [False, True], ids=["jnp trig", "small-angle polynomials"])
-def test_long_run_invariants(polynomial_plan, scene, monkeypatch, request):
+def test_long_run_invariants(polynomial_plan, scene, monkeypatch, fresh_programs):
     """10⁶ steps through ``vj.simulate``: every piece commutes with the symmetry, so
     Kelvin–Noether (vertical angular momentum) and the vehicle's horizontal linear momentum RP
     hold to round-off, R stays on SO(3) (products of rotations); the energy error of a symplectic
     composition oscillates without a trend. Both rotation plans: half-angle ``jnp.sin``/``jnp.cos``
     (XLA's default flags) and the small-angle polynomials (the loop option), whose rounding must
     not make the rotations drift off SO(3) either."""
-    jax.clear_caches()  # the plan is chosen at trace time: no program traced under the other one
-    request.addfinalizer(jax.clear_caches)
+    # fresh_programs: the plan is chosen at trace time, no program is traced under the other one
     monkeypatch.setattr(splitting_pieces, "loop_option_requested", lambda: polynomial_plan)
     model, x0, h = LONG_RUNS[scene]()
     n, every = 1_000_000, 1000
@@ -377,7 +376,7 @@ def test_checkpointed_gradient_equals_plain_gradient(save_every):
 
 
 @pytest.mark.parametrize("save_every", [1, 3])
-def test_the_rematerialisation_follows_the_loop_plan(monkeypatch, save_every):
+def test_the_rematerialisation_follows_the_loop_plan(monkeypatch, save_every, fresh_programs):
     """On XLA:CPU's default loop plan: every node saved in blocks of ``step_block`` nodes, the
     nodes rematerialised and not their blocks; a node every few steps with each stage
     rematerialised (in blocks of stages) and not the node. With the loop option: blocks of
@@ -402,7 +401,7 @@ def test_the_rematerialisation_follows_the_loop_plan(monkeypatch, save_every):
     def traced(flags):
         monkeypatch.setenv("XLA_FLAGS", flags)
         stages.clear(), scans.clear()
-        jax.clear_caches()  # the plan is chosen at trace time
+        fresh_programs()  # the plan is chosen at trace time
         loss = lambda m: _loss(vj.simulate(m, x0, 0.05, 2 * save_every, scheme="splitting", save_every=save_every))  # noqa: E731
         jax.make_jaxpr(eqx.filter_grad(loss))(VEHICLE)
         return list(stages), list(scans)
