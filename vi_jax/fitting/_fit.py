@@ -48,7 +48,7 @@ from ._initial_states import estimate_states
 from ._levenberg_marquardt import levenberg_marquardt
 from ._observations import Observations
 from ._parametrisation import FreeParameters, Parametrisation
-from ._robust import LOSSES, loss_index
+from ._robust import loss_index
 from ._shooting import STATE_SIZE, Layout, residuals_and_jacobian, samples_of, start_state
 from ._telemetry import CHANNELS, Telemetry
 
@@ -271,7 +271,7 @@ def fit(
     if not isinstance(guess, UnderwaterVehicle):
         raise ValueError(f"guess: expected a vj.models.UnderwaterVehicle, got {type(guess).__name__}")
     max_steps = val.check_int("max_steps", max_steps, 1)
-    loss = val.check_choice("loss", loss, LOSSES)
+    loss = loss_index(loss)
     continuity = tuple(float(w) for w in continuity)
     if any(not (w > 0 and math.isfinite(w)) for w in continuity):
         raise ValueError(f"continuity: expected finite weights > 0, got {continuity!r}")
@@ -319,7 +319,7 @@ def fit(
     for n_seg, weight in plan:
         if n_seg == 1:
             layout, states, R_ref = Layout(t, t0, h, 1, n_steps), states[:1], R_ref[:1]
-        problem = _Problem(model_of, layout, samples, jnp.asarray(R_ref), jnp.asarray(weight), jnp.asarray(loss_index(loss)), tau, order)
+        problem = _Problem(model_of, layout, samples, jnp.asarray(R_ref), jnp.asarray(weight), jnp.asarray(loss), tau, order)
         stage_starts.append(len(history))
         z = jnp.concatenate([theta, jnp.asarray(states).ravel()])
         label = "single shooting" if n_seg == 1 else f"{n_seg} segments, w={weight:g}"

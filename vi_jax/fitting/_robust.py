@@ -12,6 +12,8 @@ values and gradients are finite at r = 0.
 import jax
 import jax.numpy as jnp
 
+from .. import _validation as val
+
 LOSSES = ("squared", "huber", "cauchy")
 
 HUBER_K = 1.345
@@ -40,10 +42,8 @@ _TRANSFORMS = (_squared, _huber, _cauchy)
 
 
 def loss_index(loss) -> int:
-    """The position of the loss named ``loss`` in ``LOSSES``."""
-    if loss not in LOSSES:
-        raise ValueError(f"loss: expected one of {LOSSES}, got {loss!r}")
-    return LOSSES.index(loss)
+    """The position of the loss named ``loss`` in ``LOSSES`` (a ``ValueError`` for another name)."""
+    return LOSSES.index(val.check_choice("loss", loss, LOSSES))
 
 
 def robust_residuals(r, loss):
