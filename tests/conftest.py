@@ -6,7 +6,9 @@ value's definition unchanged (the suite is compile-bound: most tests build a new
   spread (two runs of ``python benchmarks/compile_time.py``).
 * LLVM at -O0 (``--xla_backend_optimization_level=0``): the same optimised HLO, machine code
   compiled without LLVM's passes. The whole suite: backend compile 390 against 798 s of the
-  workers' time, 1003 against 1423 s in all, 510 against 722 s wall (two runs the same hour);
+  workers' time, 1003 against 1423 s in all (JAX's monitoring events summed per test by a throwaway
+  pytest plugin, not kept), 510 against 722 s wall (``python -m pytest -q`` with and without
+  the flag, the same hour);
   vj.simulate's programs compile in 0.4× the time and run 6× slower (``compile_time.py``'s
   child, three scenes), which the tests' short runs do not feel. Values change by round-off
   only; users and the benchmarks compile at XLA's default level.
