@@ -5,10 +5,9 @@ value's definition unchanged (the suite is compile-bound: most tests build a new
   0.51–0.78× the backend compile time, at 0.73–1.41× the step cost, within the run-to-run
   spread (two runs of ``python benchmarks/compile_time.py``).
 * LLVM at -O0 (``--xla_backend_optimization_level=0``): the same optimised HLO, machine code
-  compiled without LLVM's passes. The whole suite: backend compile 390 against 798 s of the
-  workers' time, 1003 against 1423 s in all (JAX's monitoring events summed per test by a throwaway
-  pytest plugin, not kept), 510 against 722 s wall (``python -m pytest -q`` with and without
-  the flag, the same hour);
+  compiled without LLVM's passes. The whole suite: backend compile 366 against 732 s of the
+  workers' time, 479 against 668 s wall (``python benchmarks/suite_profile.py``: the suite at
+  levels 0 and 3 one after the other, JAX's monitoring events summed per test);
   vj.simulate's programs compile in 0.4× the time and run 6× slower (``compile_time.py``'s
   child, three scenes), which the tests' short runs do not feel. Values change by round-off
   only; users and the benchmarks compile at XLA's default level.
