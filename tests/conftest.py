@@ -25,12 +25,10 @@ import subprocess
 import sys
 import tempfile
 
-# Before scipy's OpenBLAS loads (jax imports it for LAPACK): one OpenBLAS thread. Two fresh-clone
-# runs of this suite crashed in libscipy_openblas (a segfault reserving a 528 KB stack frame, and
-# a heap corruption seen later in a GC). Reproduced alone since: the noise-free fit of
-# tests/test_fit.py under LLVM -O0 and `ulimit -s unlimited` (.ci/run's, for XLA's compiler)
-# segfaulted in 2 of 6 runs with OpenBLAS's threads, in 0 of 6 with one thread and in 0 of 6
-# under the default 8 MB limit (under an unlimited one glibc gives new threads 2 MB stacks).
+# Before scipy's OpenBLAS loads (JAX loads it at its first CPU linear algebra): one OpenBLAS thread.
+# Under .ci/run's `ulimit -s unlimited` glibc gives threads 2 MB stacks, which OpenBLAS's threaded
+# LU can overflow (vi_jax/_openblas_threads.py): two fresh-clone runs of this suite crashed in
+# libscipy_openblas, and the noise-free fit of tests/test_fit.py alone segfaulted in 2 of 6 runs.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 _FAST_COMPILES = ("--xla_cpu_use_fusion_emitters=false", "--xla_backend_optimization_level=0")

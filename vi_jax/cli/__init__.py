@@ -10,7 +10,9 @@ kelvin_noether; leading axis = time) and PNG plots. Bad input is reported in one
 non-zero exit status (2); a failed step exits 1; a run whose energy error says it is
 meaningless (``vi_jax.AccuracyWarning``) writes its files, says so on stderr and exits 3.
 The command line compiles small-step loops into single XLA:CPU kernels
-(``vi_jax/engine/_cpu_tuning.py``) unless ``XLA_FLAGS`` already sets ``xla_backend_extra_options``.
+(``vi_jax/engine/_cpu_tuning.py``) unless ``XLA_FLAGS`` already sets ``xla_backend_extra_options``,
+and under an unlimited stack limit asks OpenBLAS for one thread unless a count is set
+(``vi_jax/_openblas_threads.py``).
 """
 
 import argparse
@@ -46,10 +48,12 @@ def _parser():
 
 
 def main(argv=None):
+    from .._openblas_threads import one_openblas_thread_if_stacks_are_small
     from ..engine._cpu_tuning import backend_started, enable_fast_cpu_loops
 
     if not backend_started():  # the command's own process (called in a running session: its flags stay)
         enable_fast_cpu_loops()
+        one_openblas_thread_if_stacks_are_small()
     from .._accuracy import AccuracyWarning
 
     args = _parser().parse_args(argv)

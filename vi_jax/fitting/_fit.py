@@ -31,6 +31,7 @@ mg ≠ B. :func:`identifiability` reports this from the Jacobian's rank.
 
 import dataclasses
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -39,6 +40,7 @@ import numpy as np
 import optax
 
 from .. import _validation as val
+from .._openblas_threads import OVERFLOW_WARNING, threaded_lu_can_overflow
 from .._system import State
 from ..engine import NewtonFailure, simulate
 from ..lie._so3 import so3_exp
@@ -274,8 +276,11 @@ def fit(
     the last stage), or would move no unknown by more than ``XTOL``·max(|z|, 1) (that step
     taken): on noisy data the parameters are then within a few hundredths of σ of the minimum,
     on exact data at round-off.
-    ``progress=True`` shows a progress bar.
+    ``progress=True`` shows a progress bar. Warns where OpenBLAS's threaded LU may overflow its
+    thread's stack (``vi_jax/_openblas_threads.py``).
     """
+    if threaded_lu_can_overflow():
+        warnings.warn(f"vj.fit: {OVERFLOW_WARNING}", RuntimeWarning, stacklevel=2)
     telemetry = as_telemetry(data)
     if h is None:
         h = data.h if isinstance(data, Observations) else DEFAULT_H
