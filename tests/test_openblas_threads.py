@@ -1,7 +1,7 @@
 """OpenBLAS's threaded LU under an unlimited stack limit (vi_jax/_openblas_threads.py): when
 the condition holds, vj.fit warns before any linear algebra and the command line asks OpenBLAS
 for one thread; a finite limit, one CPU or a thread count of 1 clears it; a user's own count
-stands. (The crash itself is intermittent, 2 of 10 fresh processes of 200 solves:
+stands. (The crash itself is intermittent, 2 of 20 fresh processes of 200 solves:
 ``python benchmarks/openblas_threads.py``; not a test.)"""
 
 import os

@@ -42,8 +42,7 @@ def _openblas_threads() -> int | None:
 def threaded_lu_can_overflow() -> bool:
     """Whether a large LU here may run threaded on 2 MB thread stacks: on Linux, the stack
     limit unlimited, more than one CPU, and no thread count of 1 asked for."""
-    threads = _openblas_threads()
-    return _stack_limit_unlimited() and (os.cpu_count() or 1) > 1 and threads != 1
+    return _stack_limit_unlimited() and (os.cpu_count() or 1) > 1 and _openblas_threads() != 1
 
 
 def one_openblas_thread_if_stacks_are_small() -> bool:
