@@ -2,6 +2,8 @@
 median of repeats), compile time reported separately."""
 
 import json
+import os
+import platform
 import statistics
 import subprocess
 import sys
@@ -48,6 +50,12 @@ def cpu_per_wall(call, repeats=3):
     for _ in range(repeats):
         jax.block_until_ready(call())
     return (time.process_time() - cpu) / (time.perf_counter() - wall)
+
+
+def machine(**versions):
+    """The machine and versions a study ran on (``versions``: further packages' versions)."""
+    return {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+            "python": platform.python_version(), "jax": jax.__version__, **versions}
 
 
 def write_json(path, payload):

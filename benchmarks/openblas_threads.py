@@ -11,7 +11,6 @@ stack limit of unlimited (else the first two are skipped) and Linux.
 
 import argparse
 import os
-import platform
 import resource
 import signal
 import subprocess
@@ -19,7 +18,9 @@ import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
-from _timing import write_json
+from _timing import machine, write_json
+
+from vi_jax._openblas_threads import THREAD_VARIABLES
 
 REPO = Path(__file__).resolve().parent.parent
 SOLVES = """
@@ -44,7 +45,7 @@ def run(stack, env):
         resource.setrlimit(resource.RLIMIT_STACK, (stack, resource.getrlimit(resource.RLIMIT_STACK)[1]))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
-    base = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")}
+    base = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
     return subprocess.run([sys.executable, "-c", SOLVES], env={**base, **env}, preexec_fn=limits,
                           capture_output=True).returncode
 
@@ -60,13 +61,11 @@ def main():
     for _ in range(args.runs):
         for name, (stack, env) in configs.items():
             codes[name].append(run(stack, env))
-    import jax
     import scipy
 
     study = {"command": "python benchmarks/openblas_threads.py " + " ".join(sys.argv[1:]),
              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-             "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                         "python": platform.python_version(), "jax": jax.__version__, "scipy": scipy.__version__},
+             "machine": machine(scipy=scipy.__version__),
              "configs": {name: {"runs": len(c), "segfaults": c.count(-signal.SIGSEGV),
                                 "other_failures": sum(1 for x in c if x not in (0, -signal.SIGSEGV)), "return_codes": c}
                          for name, c in codes.items()}}

@@ -15,7 +15,6 @@ import argparse
 import collections
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -23,8 +22,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from _timing import write_json
-from suite_time import COUNT
+from _timing import machine, write_json
+from suite_time import outcome_counts, summary_line
 
 REPO = Path(__file__).resolve().parent.parent
 PHASES = ("jaxpr_trace_duration", "jaxpr_to_mlir_module_duration", "backend_compile_duration",
@@ -45,13 +44,13 @@ def run_suite(level):
         tests = {}
         for worker in Path(folder).glob("*.json"):
             tests.update(json.loads(worker.read_text()))
-    last = (done.stdout.strip().splitlines() or [""])[-1]
+    last = summary_line(done.stdout)
     totals = collections.Counter()
     for phases in tests.values():
         totals.update(phases)
     heaviest = sorted(tests, key=lambda test: -tests[test].get("backend_compile_duration", 0.0))[:10]
     return {"level": level, "wall_s": round(wall, 1), "summary": last, "returncode": done.returncode,
-            **{outcome: int(found[1]) if (found := pattern.search(last)) else 0 for outcome, pattern in COUNT.items()},
+            **outcome_counts(last),
             "worker_s": {phase: round(totals[phase], 1) for phase in PHASES},
             "compiles": int(totals["count_backend_compile_duration"]),
             "cache_hits": int(totals["count_cache_hits"]),
@@ -66,13 +65,10 @@ def main():
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "suite_profile.json"))
     args = parser.parse_args()
 
-    import jax
-
     head = subprocess.run(["git", "-C", str(REPO), "log", "-1", "--format=%H"], capture_output=True, text=True)
     study = {"command": "python benchmarks/suite_profile.py " + " ".join(sys.argv[1:]),
              "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "commit": head.stdout.strip(),
-             "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                         "python": platform.python_version(), "jax": jax.__version__},
+             "machine": machine(),
              "runs": []}
     for round_ in range(args.rounds):
         for level in args.levels:

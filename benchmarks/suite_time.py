@@ -15,7 +15,6 @@ every run, so a study cut short keeps the runs it finished.
 
 import argparse
 import os
-import platform
 import re
 import subprocess
 import sys
@@ -25,7 +24,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from xml.etree import ElementTree
 
-from _timing import write_json
+from _timing import machine, write_json
 
 REPO = Path(__file__).resolve().parent.parent
 COUNT = {outcome: re.compile(rf"(\d+) {outcome}") for outcome in ("passed", "failed", "error")}
@@ -53,6 +52,16 @@ def seconds_per_test(junit):
     return {f"{case.get('classname')}::{case.get('name')}": round(float(case.get("time", 0.0)), 2) for case in cases}
 
 
+def summary_line(stdout):
+    """pytest's last line (its summary) from its output."""
+    return (stdout.strip().splitlines() or [""])[-1]
+
+
+def outcome_counts(summary):
+    """Passed, failed and error counts in pytest's summary line."""
+    return {outcome: int(found[1]) if (found := pattern.search(summary)) else 0 for outcome, pattern in COUNT.items()}
+
+
 def run_suite(path):
     """Wall seconds, pytest's own summary line and its counts, and each test's seconds, for the
     suite at ``path``."""
@@ -64,11 +73,9 @@ def run_suite(path):
         cwd=path, env=env, capture_output=True, text=True,
     )
     wall = time.perf_counter() - start
-    lines = done.stdout.strip().splitlines()
-    last = lines[-1] if lines else ""
-    counts = {outcome: int(found[1]) if (found := pattern.search(last)) else 0 for outcome, pattern in COUNT.items()}
+    last = summary_line(done.stdout)
     seconds = SECONDS.search(last)
-    return {"wall_s": round(wall, 1), "pytest_s": float(seconds[1]) if seconds else None, **counts,
+    return {"wall_s": round(wall, 1), "pytest_s": float(seconds[1]) if seconds else None, **outcome_counts(last),
             "returncode": done.returncode, "summary": last, "tests_s": seconds_per_test(junit) if junit.exists() else {}}
 
 
@@ -79,14 +86,12 @@ def main():
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "suite_time.json"))
     args = parser.parse_args()
 
-    import jax
 
     versions = {name: resolve(name) for name in args.versions}
     study = {
         "command": "python benchmarks/suite_time.py " + " ".join(sys.argv[1:]),
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                    "python": platform.python_version(), "jax": jax.__version__},
+        "machine": machine(),
         "versions": {name: {"commit": sha, "subject": subject[:200]} for name, (sha, subject) in versions.items()},
         "runs": [],
     }
