@@ -1,5 +1,6 @@
 """OpenBLAS's threaded LU under an unlimited stack limit (vi_jax/_openblas_threads.py): when
-the condition holds, vj.fit warns before any linear algebra and the command line asks OpenBLAS
+the condition holds, vj.fit warns before any linear algebra where its Gauss–Newton system is
+large enough for OpenBLAS's threaded LU, and the command line asks OpenBLAS
 for one thread; a finite limit, one CPU or a thread count of 1 clears it; a user's own count
 stands. (The crash itself is intermittent, 2 of 20 fresh processes of 200 solves:
 ``python benchmarks/openblas_threads.py``; not a test.)"""
@@ -8,6 +9,7 @@ import os
 import resource
 import warnings
 
+import numpy as np
 import pytest
 
 from vi_jax import _openblas_threads
@@ -64,14 +66,36 @@ def test_the_command_lines_own_process_runs_one_thread(unlimited_stack_two_cpus,
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
 
 
-def test_fit_warns_before_its_linear_algebra(unlimited_stack_two_cpus, monkeypatch):
+def test_the_condition_needs_a_system_large_enough_for_the_threaded_lu(unlimited_stack_two_cpus):
+    # OpenBLAS's dgetrf runs threaded from 10,000 entries (its interface/lapack/getrf.c)
+    assert not threaded_lu_can_overflow(99)
+    assert threaded_lu_can_overflow(100)
+    assert threaded_lu_can_overflow(777)
+
+
+def _too_little_data():
+    """Five position samples: 15 observed components, fewer than the 9 + 12 unknowns
+    of any fit, so vj.fit raises once its arguments are checked, before any linear algebra."""
+    from vi_jax.fitting import Telemetry
+
+    t = np.linspace(0.0, 0.4, 5)
+    return Telemetry(t, sigma={"position": 0.01}, position=np.zeros((5, 3)))
+
+
+def test_fit_warns_before_its_linear_algebra_where_its_system_is_large(unlimited_stack_two_cpus, monkeypatch):
     import vi_jax as vj
 
     guess = vj.models.UnderwaterVehicle()
-    with pytest.warns(RuntimeWarning, match="OPENBLAS_NUM_THREADS=1"), pytest.raises(ValueError, match="data: expected"):
-        vj.fit(None, None, guess)
+    # 9 + 12 × 8 = 105 unknowns: threaded; 9 + 12 × 7 = 93 and the default 4 segments: not
+    with pytest.warns(RuntimeWarning, match=r"\(105 unknowns\).*OPENBLAS_NUM_THREADS=1"), pytest.raises(ValueError, match="observed components"):
+        vj.fit(_too_little_data(), None, guess, segments=8)
+    for segments in (None, 1, 7):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(ValueError, match="observed components"):
+                vj.fit(_too_little_data(), None, guess, segments=segments)
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "1")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(ValueError, match="data: expected"):
-            vj.fit(None, None, guess)
+        with pytest.raises(ValueError, match="observed components"):
+            vj.fit(_too_little_data(), None, guess, segments=8)

@@ -2,8 +2,8 @@
 
 Under ``ulimit -s unlimited`` (common on clusters; ``.ci/run`` sets it for XLA's compiler) glibc
 gives every new thread a 2 MB stack instead of the limit. JAX's CPU ``jnp.linalg.solve`` calls
-scipy's OpenBLAS, whose threaded LU (``dgetrf_parallel``, for matrices of more than 10,000
-entries) recurses with frames of about 0.5 MB on XLA's worker thread and can overflow it: a
+scipy's OpenBLAS, whose threaded LU (``dgetrf_parallel``, for matrices of ``THREADED_LU_ENTRIES``
+entries or more) recurses with frames of about 0.5 MB on XLA's worker thread and can overflow it: a
 segmentation fault (a core dump of ``python benchmarks/fit_time.py``: ``dgetrf_parallel`` five
 deep in an XLA worker). ``python benchmarks/openblas_threads.py`` counts the crashes of a
 777 × 777 solve (the fit's Gauss–Newton system) under each stack limit and thread count. The
@@ -18,6 +18,9 @@ import os
 import sys
 
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+# OpenBLAS's dgetrf factors an m × n matrix on one thread below m·n = 10,000 (float32: 40,000;
+# OpenBLAS's interface/lapack/getrf.c): smaller systems never reach the threaded LU.
+THREADED_LU_ENTRIES = 10_000
 
 
 def _stack_limit_unlimited() -> bool:
@@ -39,10 +42,12 @@ def _openblas_threads() -> int | None:
         return 0
 
 
-def threaded_lu_can_overflow() -> bool:
-    """Whether a large LU here may run threaded on 2 MB thread stacks: on Linux, the stack
-    limit unlimited, more than one CPU, and no thread count of 1 asked for."""
-    return _stack_limit_unlimited() and (os.cpu_count() or 1) > 1 and _openblas_threads() != 1
+def threaded_lu_can_overflow(order: int | None = None) -> bool:
+    """Whether an LU of a square matrix of ``order`` (None: any order) may run threaded on 2 MB
+    thread stacks: on Linux, the stack limit unlimited, more than one CPU, no thread count of 1
+    asked for, and ``order``² ≥ ``THREADED_LU_ENTRIES``."""
+    large = order is None or order * order >= THREADED_LU_ENTRIES
+    return large and _stack_limit_unlimited() and (os.cpu_count() or 1) > 1 and _openblas_threads() != 1
 
 
 def one_openblas_thread_if_stacks_are_small() -> bool:
@@ -58,7 +63,7 @@ def one_openblas_thread_if_stacks_are_small() -> bool:
 
 OVERFLOW_WARNING = (
     "the stack limit is unlimited (`ulimit -s unlimited`), so new threads get 2 MB stacks, and "
-    "OpenBLAS's threaded LU, which this fit's linear solves reach through JAX, can overflow them "
-    "(a segmentation fault). Set OPENBLAS_NUM_THREADS=1, or a finite `ulimit -s`, before starting "
+    "OpenBLAS's threaded LU, which this fit's linear solves ({order} unknowns) reach through JAX, can "
+    "overflow them (a segmentation fault). Set OPENBLAS_NUM_THREADS=1, or a finite `ulimit -s`, before starting "
     "Python (the vi-jax command line does the first itself)."
 )

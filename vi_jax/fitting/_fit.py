@@ -277,10 +277,9 @@ def fit(
     taken): on noisy data the parameters are then within a few hundredths of σ of the minimum,
     on exact data at round-off.
     ``progress=True`` shows a progress bar. Warns where OpenBLAS's threaded LU may overflow its
-    thread's stack (``vi_jax/_openblas_threads.py``).
+    thread's stack (``vi_jax/_openblas_threads.py``: Gauss–Newton systems of 100 unknowns or more,
+    i.e. more than 7 segments with the default 9 parameters).
     """
-    if threaded_lu_can_overflow():
-        warnings.warn(f"vj.fit: {OVERFLOW_WARNING}", RuntimeWarning, stacklevel=2)
     telemetry = as_telemetry(data)
     if h is None:
         h = data.h if isinstance(data, Observations) else DEFAULT_H
@@ -302,6 +301,9 @@ def fit(
     if segments is None:
         segments = max(1, min(n_steps, t.size - 1, MAX_SEGMENTS))
     segments = val.check_int("segments", segments, 1)
+    system_order = len(labels) + STATE_SIZE * segments  # the largest Gauss–Newton system
+    if threaded_lu_can_overflow(system_order):
+        warnings.warn(f"vj.fit: {OVERFLOW_WARNING.format(order=system_order)}", RuntimeWarning, stacklevel=2)
     n_unknowns = len(labels) + STATE_SIZE
     if telemetry.n_observed <= n_unknowns:
         raise ValueError(
