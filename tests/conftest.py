@@ -26,9 +26,10 @@ import sys
 import tempfile
 
 # Before scipy's OpenBLAS loads (JAX loads it at its first CPU linear algebra): one OpenBLAS thread.
-# Under .ci/run's `ulimit -s unlimited` glibc gives threads 2 MB stacks, which OpenBLAS's threaded
-# LU can overflow (vi_jax/_openblas_threads.py): two fresh-clone runs of this suite crashed in
-# libscipy_openblas, and the noise-free fit of tests/test_fit.py alone segfaulted in 2 of 6 runs.
+# Under `ulimit -s unlimited` (as .ci/run once set) glibc gives threads 2 MB stacks, which
+# OpenBLAS's threaded LU can overflow (vi_jax/_openblas_threads.py): two fresh-clone runs of this
+# suite crashed in libscipy_openblas, and the noise-free fit of tests/test_fit.py alone
+# segfaulted in 2 of 6 runs.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 _FAST_COMPILES = ("--xla_cpu_use_fusion_emitters=false", "--xla_backend_optimization_level=0")

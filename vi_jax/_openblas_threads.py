@@ -1,7 +1,7 @@
 """OpenBLAS's threaded LU under an unlimited stack limit.
 
-Under ``ulimit -s unlimited`` (common on clusters; ``.ci/run`` sets it for XLA's compiler) glibc
-gives every new thread a 2 MB stack instead of the limit. JAX's CPU ``jnp.linalg.solve`` calls
+Under ``ulimit -s unlimited`` (common on clusters) glibc gives every new thread a 2 MB stack
+instead of the limit. JAX's CPU ``jnp.linalg.solve`` calls
 scipy's OpenBLAS, whose threaded LU (``dgetrf_parallel``, for matrices of ``THREADED_LU_ENTRIES``
 entries or more) recurses with frames of about 0.5 MB on XLA's worker thread and can overflow it: a
 segmentation fault (a core dump of ``python benchmarks/fit_time.py``: ``dgetrf_parallel`` five
