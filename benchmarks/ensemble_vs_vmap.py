@@ -1,26 +1,30 @@
 """``vj.ensemble`` against a plain ``jax.vmap`` of ``vj.simulate`` (the issue's peer), CPU:
-1024 members × 1000 steps, final node saved, compiled code only, median of 5, timed in one
-process: the peer and ``vj.ensemble`` under ``jit`` (scene, states and h as jit arguments: one
-program, one core), and ``vj.ensemble`` called on concrete inputs as users call it (one group of
-members per core, the groups at the same time: ``vi_jax/engine/_member_groups.py``), with its
-CPU seconds per wall second.
+1024 members × 1000 steps, final node saved, compiled code only, timed in one process: the peer
+and ``vj.ensemble`` under ``jit`` (scene, states and h as jit arguments: one program, one core),
+and ``vj.ensemble`` called on concrete inputs as users call it (one group of members per core,
+the groups at the same time: ``vi_jax/engine/_member_groups.py``). The three are timed
+alternately, one call of each per round, the median of 7 rounds (the peers share the machine's
+load: timed one after another, the peer's 0.3–0.5 s calls and the ensemble's 0.04 s ones met
+different moments of a shared machine, the peer's rate varying 2× between runs), then each one's
+CPU seconds per wall second (the peer's too, which XLA runs partly on a second thread).
 
-    python benchmarks/ensemble_vs_vmap.py [--members 1024] [--steps 1000] [--fast-loops]
+    python benchmarks/ensemble_vs_vmap.py [--members 1024] [--steps 1000] [--scenes vehicle heavy_top rigid_body]
+        [--fast-loops]
 
 Cases: vehicle (orders 1 and 2), heavy top (1, 2), rigid body (1, 2), Cayley. ``vj.ensemble``
 takes its default path, the step generated from the scene's Lagrangian.
 """
 
 import argparse
-import os
-import statistics
+import functools
 import time
 
-from _timing import parse_args_with_fast_loops, time_compiled, write_config_json
+from _timing import cpu_per_wall, machine, parse_args_with_fast_loops, time_alternately, write_config_json
 
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 PARSER.add_argument("--members", type=int, default=1024)
 PARSER.add_argument("--steps", type=int, default=1000)
+PARSER.add_argument("--scenes", nargs="+", default=["vehicle", "heavy_top", "rigid_body"], choices=["vehicle", "heavy_top", "rigid_body"])
 ARGS = parse_args_with_fast_loops(PARSER)
 
 import equinox as eqx  # noqa: E402
@@ -35,24 +39,11 @@ import vi_jax as vj  # noqa: E402
 SCENES = {"vehicle": (vj.models.UnderwaterVehicle, 0.01), "heavy_top": (vj.models.HeavyTop, 0.005), "rigid_body": (vj.models.RigidBody, 0.01)}
 
 
-def time_concrete(call, repeats=5):
-    """(median seconds, median CPU seconds per wall second, last output) of a concrete call,
-    after a first call that compiles."""
-    out = jax.block_until_ready(call())
-    walls, loads = [], []
-    for _ in range(repeats):
-        cpu, start = os.times(), time.perf_counter()
-        out = jax.block_until_ready(call())
-        walls.append(time.perf_counter() - start)
-        end = os.times()
-        loads.append((end.user + end.system - cpu.user - cpu.system) / walls[-1])
-    return statistics.median(walls), statistics.median(loads), out
-
-
 def main():
     n, steps = ARGS.members, ARGS.steps
     rows = []
-    for name, (scene, h) in SCENES.items():
+    for name in ARGS.scenes:
+        scene, h = SCENES[name]
         model = scene()
         x0 = model.initial_state()
         states = vj.vary(x0, xi=np.asarray(x0.xi) + 0.05 * np.random.default_rng(0).normal(size=(n, 3)))
@@ -66,22 +57,26 @@ def main():
                 )(s)
             )
             h_ = jnp.asarray(h)
-            _, t_ens, g_ens = time_compiled(ensemble, model, states, h_, repeats=5)
-            _, t_plain, g_plain = time_compiled(plain, model, states, h_, repeats=5)
-            t_conc, cpu_conc, g_conc = time_concrete(
-                lambda order=order: vj.ensemble(model, states, h, steps, order=order, save_every=steps, throw=False).g[:, -1]
-            )
-            row = dict(scene=name, order=order, members=n, steps=steps, ensemble_s=t_ens, plain_vmap_s=t_plain,
-                       ensemble_rate=n * steps / t_ens, plain_vmap_rate=n * steps / t_plain, ratio=t_plain / t_ens,
-                       concrete_s=t_conc, concrete_rate=n * steps / t_conc, concrete_ratio=t_plain / t_conc,
-                       concrete_cpu_over_wall=cpu_conc,
-                       max_abs_difference=float(max(jnp.max(jnp.abs(g - g_plain)) for g in (g_ens, g_conc))))
+            calls = {
+                "plain_vmap": functools.partial(plain, model, states, h_),
+                "ensemble": functools.partial(ensemble, model, states, h_),
+                "concrete": lambda order=order: vj.ensemble(model, states, h, steps, order=order, save_every=steps, throw=False).g[:, -1],
+            }
+            finals = {key: jax.block_until_ready(call()) for key, call in calls.items()}  # compiles
+            seconds = time_alternately(calls, repeats=7)
+            load = {key: cpu_per_wall(call) for key, call in calls.items()}
+            row = dict(scene=name, order=order, members=n, steps=steps)
+            for key, t in seconds.items():
+                row.update({f"{key}_s": t, f"{key}_rate": n * steps / t, f"{key}_cpu_over_wall": load[key]})
+            row.update(ratio=seconds["plain_vmap"] / seconds["ensemble"], concrete_ratio=seconds["plain_vmap"] / seconds["concrete"],
+                       max_abs_difference=float(max(jnp.max(jnp.abs(finals[k] - finals["plain_vmap"])) for k in ("ensemble", "concrete"))))
             rows.append(row)
-            print(f"{name:10s} order {order}: plain vmap(simulate) {row['plain_vmap_rate'] / 1e6:6.2f} M member-steps/s; "
-                  f"ensemble under jit {row['ensemble_rate'] / 1e6:6.2f} M ({row['ratio']:5.2f}x), "
-                  f"concrete {row['concrete_rate'] / 1e6:6.2f} M ({row['concrete_ratio']:5.2f}x, cpu/wall {cpu_conc:.2f}) "
+            print(f"{name:10s} order {order}: plain vmap(simulate) {row['plain_vmap_rate'] / 1e6:6.2f} M member-steps/s "
+                  f"(cpu/wall {load['plain_vmap']:.2f}); ensemble under jit {row['ensemble_rate'] / 1e6:6.2f} M "
+                  f"({row['ratio']:5.2f}x, cpu/wall {load['ensemble']:.2f}), "
+                  f"concrete {row['concrete_rate'] / 1e6:6.2f} M ({row['concrete_ratio']:5.2f}x, cpu/wall {load['concrete']:.2f}) "
                   f"(max |ΔR| {row['max_abs_difference']:.1e})", flush=True)
-    write_config_json("ensemble_vs_vmap", ARGS.fast_loops, rows=rows)
+    write_config_json("ensemble_vs_vmap", ARGS.fast_loops, date=time.strftime("%Y-%m-%d"), machine=machine(), timing="alternate", rows=rows)
 
 
 if __name__ == "__main__":
