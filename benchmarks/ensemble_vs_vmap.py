@@ -24,7 +24,8 @@ from _timing import cpu_per_wall, machine, parse_args_with_fast_loops, time_alte
 PARSER = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 PARSER.add_argument("--members", type=int, default=1024)
 PARSER.add_argument("--steps", type=int, default=1000)
-PARSER.add_argument("--scenes", nargs="+", default=["vehicle", "heavy_top", "rigid_body"], choices=["vehicle", "heavy_top", "rigid_body"])
+SCENE_NAMES = ("vehicle", "heavy_top", "rigid_body")  # SCENES' keys: the options are parsed before vi_jax is imported
+PARSER.add_argument("--scenes", nargs="+", default=list(SCENE_NAMES), choices=SCENE_NAMES)
 ARGS = parse_args_with_fast_loops(PARSER)
 
 import equinox as eqx  # noqa: E402

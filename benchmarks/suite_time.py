@@ -86,7 +86,6 @@ def main():
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "suite_time.json"))
     args = parser.parse_args()
 
-
     versions = {name: resolve(name) for name in args.versions}
     study = {
         "command": "python benchmarks/suite_time.py " + " ".join(sys.argv[1:]),

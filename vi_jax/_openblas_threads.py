@@ -1,10 +1,9 @@
 """OpenBLAS's threaded LU under an unlimited stack limit.
 
 Under ``ulimit -s unlimited`` (common on clusters) glibc gives every new thread a 2 MB stack
-instead of the limit. JAX's CPU ``jnp.linalg.solve`` calls
-scipy's OpenBLAS, whose threaded LU (``dgetrf_parallel``, for matrices of ``THREADED_LU_ENTRIES``
-entries or more) recurses with frames of about 0.5 MB on XLA's worker thread and can overflow it: a
-segmentation fault (a core dump of ``python benchmarks/fit_time.py``: ``dgetrf_parallel`` five
+instead of the limit. JAX's CPU ``jnp.linalg.solve`` calls scipy's OpenBLAS, whose threaded LU
+(``dgetrf_parallel``, for matrices of ``THREADED_LU_ENTRIES`` entries or more) recurses with
+frames of about 0.5 MB on XLA's worker thread and can overflow it: a segmentation fault (a core dump of ``python benchmarks/fit_time.py``: ``dgetrf_parallel`` five
 deep in an XLA worker). ``python benchmarks/openblas_threads.py`` counts the crashes of a
 777 × 777 solve (the fit's Gauss–Newton system) under each stack limit and thread count. The
 fit's solves are that size (9 parameters and 12 unknowns per segment); the integrators' are at
@@ -63,7 +62,7 @@ def one_openblas_thread_if_stacks_are_small() -> bool:
 
 OVERFLOW_WARNING = (
     "the stack limit is unlimited (`ulimit -s unlimited`), so new threads get 2 MB stacks, and "
-    "OpenBLAS's threaded LU, which this fit's linear solves ({order} unknowns) reach through JAX, can "
-    "overflow them (a segmentation fault). Set OPENBLAS_NUM_THREADS=1, or a finite `ulimit -s`, before starting "
-    "Python (the vi-jax command line does the first itself)."
+    "OpenBLAS's threaded LU, which this fit's linear solves ({order} unknowns) reach through JAX, "
+    "can overflow them (a segmentation fault). Set OPENBLAS_NUM_THREADS=1, or a finite `ulimit -s`, "
+    "before starting Python (the vi-jax command line does the first itself)."
 )
