@@ -1,8 +1,9 @@
 """``vj.simulate``'s loops as one kernel on XLA:CPU whatever its flags (``in_one_kernel``,
 ``vi_jax/_saved_nodes.py``): the DEP loops of a scene whose step holds only elementwise
 operations reach XLA as one marked call, under a caller's ``jit`` and in the concrete call's
-program, planned as with the loop option; a scene with LAPACK or matrix products in its step,
-or a loop program too large to compile quickly as one kernel, keeps the default plan;
+program, planned as with the loop option, Newton's iterations rolled for a single trajectory;
+a scene with LAPACK or matrix products in its step, or a loop program too large to compile
+quickly as one kernel, keeps the default plan;
 differentiation runs the default plan's program (the region's JVP is never taken); the values
 are the default plan's to round-off."""
 
@@ -17,6 +18,7 @@ from test_generated_step import _user_system
 from test_one_kernel import one_kernel_calls
 
 import vi_jax as vj
+from vi_jax import _saved_nodes
 from vi_jax.engine import _advance, _simulate
 
 EPS = np.finfo(np.float64).eps
@@ -47,17 +49,83 @@ def test_the_loops_are_one_kernel_under_jit_and_in_the_concrete_program(name):
         assert one_kernel_calls(lowered.compile().compiled) == 1
 
 
-@pytest.mark.parametrize("scene, order", [("rigid body on SO(4)", 1), ("vehicle", 2)])
-def test_lapack_or_a_large_program_keeps_the_default_plan(scene, order):
-    """SO(4): the step's exp map and solves call LAPACK, which XLA:CPU's one kernel cannot; the
-    vehicle at order 2: its loop program holds more than ``ONE_KERNEL_EQUATIONS`` equations.
-    No region, the loops planned for the default thunk executor, and the run as before."""
-    system = vj.models.RigidBody(group=vj.lie.SOn(4)) if scene != "vehicle" else vj.models.UnderwaterVehicle()
+@pytest.mark.parametrize("order", [1, 2])
+def test_lapack_keeps_the_default_plan(order):
+    """SO(4): the step's exp map and solves call LAPACK, which XLA:CPU's one kernel cannot. No
+    region, the loops planned for the default thunk executor, and the run as before."""
+    system = vj.models.RigidBody(group=vj.lie.SOn(4))
     x0 = system.initial_state()
     run = lambda m, x: vj.simulate(m, x, 0.01, 12, order=order, throw=False).g  # noqa: E731
     assert _regions_in_jaxpr(run, system, x0) == 0
     assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 0
     assert np.all(np.isfinite(jax.jit(run)(system, x0)))
+
+
+def test_a_large_program_keeps_the_default_plan(monkeypatch, fresh_programs):
+    """A loop program of more than ``ONE_KERNEL_EQUATIONS`` equations (LLVM compiles a kernel in
+    one piece): no region, Newton's iterations not rolled, and the run as before. The shipped
+    scenes' programs all fit under ``jit`` now; a bound below the vehicle's makes it too large."""
+    system, x0 = _scene("vehicle")
+    monkeypatch.setattr(_saved_nodes, "ONE_KERNEL_EQUATIONS", 500)
+    monkeypatch.setattr(_advance, "ONE_KERNEL_EQUATIONS", 500)
+    rolled = _spy_on_rolls_newton(monkeypatch)
+    run = lambda m, x: vj.simulate(m, x, 0.01, 12, order=2, throw=False).g  # noqa: E731
+    assert _regions_in_jaxpr(run, system, x0) == 0
+    assert rolled == [False]
+    assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 0
+    assert np.all(np.isfinite(jax.jit(run)(system, x0)))
+
+
+def _spy_on_rolls_newton(monkeypatch):
+    """A list receiving each of ``_advance._rolls_newton``'s answers from now on."""
+    answers, decide = [], _advance._rolls_newton
+
+    def spy(one_step, carry):
+        answers.append(decide(one_step, carry))
+        return answers[-1]
+
+    monkeypatch.setattr(_advance, "_rolls_newton", spy)
+    return answers
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_newton_is_rolled_under_jit_for_one_trajectory_only(name, monkeypatch, fresh_programs):
+    """Under ``jit`` a single trajectory's step (orders 1, 2) rolls Newton's iterations, as the
+    concrete call's one-kernel loops do: the vehicle at order 2 is then one kernel too. A step
+    that a ``jax.vmap`` batches, and a composition (order 4), keep them unrolled."""
+    system, x0 = _scene(name)
+    rolled = _spy_on_rolls_newton(monkeypatch)
+    for order in (1, 2):
+        run = lambda m, x, order=order: vj.simulate(m, x, 0.01, 12, order=order, throw=False).g  # noqa: E731
+        assert _regions_in_jaxpr(run, system, x0) == 1
+    assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 1  # order 2
+    assert rolled and all(rolled)
+    rolled.clear()
+    xis = jnp.stack([x0.xi, 1.01 * x0.xi])
+    jax.make_jaxpr(jax.vmap(lambda xi: vj.simulate(system, vj.State(x0.g, xi, x0.q, x0.qdot), 0.01, 12, throw=False).g))(xis)
+    jax.make_jaxpr(lambda m, x: vj.simulate(m, x, 0.01, 12, order=4, throw=False).g)(system, x0)
+    assert rolled == [False]  # the vmapped step; the composition does not ask
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_rolled_iterations_equal_the_unrolled_to_newtons_tolerance(name, monkeypatch, fresh_programs):
+    """Rolled, Newton stops at the first iterate within its tolerance; unrolled, it checks once,
+    after the chord steps. Each run solves every step to that tolerance (64ε relative): over a
+    bounded motion the states part by at most about twice that per step of each array's scale."""
+    system, x0 = _scene(name)
+    n = 100
+    run = lambda m, x: vj.simulate(m, x, 0.01, n, order=2, throw=False)  # noqa: E731
+    rolled = jax.jit(run)(system, x0)
+    monkeypatch.setattr(_advance, "_rolls_newton", lambda one_step, carry: False)
+    fresh_programs()
+    unrolled = jax.jit(run)(system, x0)
+    for field in ("g", "xi", "q", "M", "P", "energy"):
+        a, b = getattr(rolled, field), getattr(unrolled, field)
+        if a is None:
+            continue
+        tol = n * 2 * 64 * EPS * float(jnp.max(jnp.abs(b)))
+        np.testing.assert_allclose(a, b, rtol=0, atol=tol, err_msg=field)
+    assert np.all(np.asarray(rolled.result) == 0) and np.all(np.asarray(unrolled.result) == 0)
 
 
 def test_differentiation_runs_the_default_plan():

@@ -87,7 +87,9 @@ def _kernel_ops_only(module, name, seen):
 
 def kernel_equations(jaxpr):
     """The equations of ``jaxpr`` (a ``Jaxpr``) and of the jaxprs it holds, or None where one
-    uses a primitive outside :data:`KERNEL_PRIMITIVES`."""
+    uses a primitive outside :data:`KERNEL_PRIMITIVES` (or JAX's internals are not there)."""
+    if core is None:
+        return None
     count = 0
     for eqn in jaxpr.eqns:
         inner = [kernel_equations(sub) for sub in core.jaxprs_in_params(eqn.params)]

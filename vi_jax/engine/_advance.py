@@ -17,7 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._one_kernel import kernel_equations
 from .._saved_nodes import (
+    ONE_KERNEL_EQUATIONS,
     SAVE_BLOCK,
     checkpointed,
     default_cpu_loops,
@@ -30,9 +32,11 @@ from .._saved_nodes import (
     step_block,
 )
 from ..discrete import StepStats, dep_step
+from ..lie._small import batched_by_vmap
 from ..solvers import SUCCESS
 from ..solvers._newton import rolled_iterations
 from ._explicit_unknowns import explicit_unknowns
+from ._placement import target_platform
 
 
 def _sub_step(system, tau, rule, rtol, max_iter):
@@ -161,9 +165,11 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     reverse mode stores a state per node, as many as the saved nodes (vehicle, 10⁶ steps, the
     positions' gradient: 289 MB of XLA temporaries, against 50 MB in blocks of 128 nodes).
     Only differentiation sees these checkpoints: a program that does not differentiate runs the
-    loops of ``checkpoint=False`` (:func:`~vi_jax._saved_nodes.checkpointed`).
+    loops of ``checkpoint=False`` (:func:`~vi_jax._saved_nodes.checkpointed`). Where those loops
+    are one kernel, a single trajectory's step rolls Newton's iterations (:func:`_rolls_newton`).
     """
 
+    carry = _with_previous(state)
     one_step = _one_step(system, tau, rule, gammas, h, rtol, max_iter)
 
     def program(one_step, carry, checkpoint):
@@ -171,7 +177,42 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
 
     # The program of checkpoint=False unless differentiated, one kernel where it can be.
     forward = in_one_kernel if len(gammas) == 1 else _default_plan
-    return checkpointed(program, one_step, _with_previous(state), checkpoint=checkpoint, forward=forward)
+    rolled = _with_rolled_iterations(one_step) if len(gammas) == 1 and _rolls_newton(one_step, carry) else None
+    # Differentiation runs the default plan's loops, one kernel only with the loop option.
+    differentiated = rolled if rolled is not None and one_kernel_loops() else one_step
+    return checkpointed(program, differentiated, carry, checkpoint=checkpoint, forward=forward, forward_step=rolled)
+
+
+def _with_rolled_iterations(step):
+    """``step`` traced with Newton's iterations rolled."""
+
+    def rolled(*args):
+        with rolled_iterations():
+            return step(*args)
+
+    return rolled
+
+
+def _rolls_newton(one_step, carry) -> bool:
+    """Whether :func:`advance_scan` runs ``one_step`` (a single-stage step: orders 1, 2) with
+    Newton's iterations rolled (:func:`~vi_jax.solvers._newton.rolled_iterations`), as the
+    concrete call's one-kernel loops do: on XLA:CPU, for a step no ``jax.vmap`` batches
+    (:func:`~vi_jax.lie._small.batched_by_vmap`), whose rolled jaxpr is a one-kernel region's
+    (:func:`~vi_jax._one_kernel.kernel_equations`, at most ``ONE_KERNEL_EQUATIONS``); in
+    reverse and forward mode only with the loop option (differentiation runs the default plan's
+    loops, which are one kernel only then). Under ``jit`` the vehicle's order-2 loops are then
+    one kernel (5,490 → 2,934 equations): its steps 0.34× as long with default XLA, the other
+    cases' 0.56–1.05×, gradients with the loop option 0.77–0.99× (``python
+    benchmarks/rolled_under_jit.py [--fast-loops]``). Where the loops
+    are not one kernel, rolled iterations cost more than they save (throwaway A/Bs when this was
+    written, under ``jit``, default XLA: SO(4)'s rigid body, whose step calls LAPACK, 8.4 → 10.4
+    µs a step; a plain ``vmap`` of ``vj.simulate`` over 256 members 1.1–2.4× slower, but for the
+    vehicle at order 1; the rigid body's gradients 1.08–1.11× as long, in two runs of that
+    benchmark's first form, which rolled them with default XLA too)."""
+    if target_platform() != "cpu" or batched_by_vmap():
+        return False
+    equations = kernel_equations(jax.make_jaxpr(_with_rolled_iterations(one_step))(carry).jaxpr)
+    return equations is not None and equations <= ONE_KERNEL_EQUATIONS
 
 
 def _default_plan(program):

@@ -130,6 +130,11 @@ def keeping_dots(enabled: bool = True):
         _KEEP_DOTS = previous
 
 
+def batched_by_vmap() -> bool:
+    """Whether the step traced now is one a ``jax.vmap`` batches (:func:`keeping_dots`)."""
+    return _KEEP_DOTS
+
+
 def fused_products(closed):
     """A function replaying the closed jaxpr ``closed`` with every small ``dot_general`` (a
     product of at most ``SMALL_PRODUCT`` elements) written as multiply-and-sum, which fuses with

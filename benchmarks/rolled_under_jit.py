@@ -1,0 +1,89 @@
+"""``vj.simulate`` under ``jit`` with Newton's iterations rolled where the step fits one kernel
+(``vi_jax/engine/_advance.py``, ``_rolls_newton``; gradients rolled with the loop option only)
+against the same programs with them unrolled (the plan before): forward runs (20,000 steps,
+every node saved) and reverse-mode gradients (4,000 steps, a node every 10 steps, the final
+position's (the attitude's) sum by the scene's parameters) of orders 1 and 2, every program
+compiled under its plan, the peers timed alternately in one process (median of ``--repeats``).
+Also each program's first call (trace, compile and run) in seconds.
+
+    python benchmarks/rolled_under_jit.py [--fast-loops] [--repeats 7]
+"""
+
+import argparse
+import contextlib
+import time
+from unittest import mock
+
+from _timing import parse_args_with_fast_loops, time_alternately, write_config_json
+
+PARSER = argparse.ArgumentParser()
+PARSER.add_argument("--repeats", type=int, default=7)
+ARGS = parse_args_with_fast_loops(PARSER)
+
+import equinox as eqx  # noqa: E402
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import vi_jax as vj  # noqa: E402
+from vi_jax.engine import _advance  # noqa: E402
+
+FORWARD_STEPS, GRADIENT_STEPS, GRADIENT_SAVE_EVERY = 20_000, 4_000, 10
+CASES = [("UnderwaterVehicle", 0.01), ("HeavyTop", 0.005), ("RigidBody", 0.01)]
+PLANS = {"rolled": (), "unrolled": (mock.patch.object(_advance, "_rolls_newton", lambda one_step, carry: False),)}
+
+
+def _compiled(fn, *args, patches=()):
+    """``fn`` jitted and compiled for ``args`` under ``patches``: (first call seconds, a call)."""
+    jax.clear_caches()  # vj.simulate's inner program is cached by its arguments: trace it anew
+    start = time.perf_counter()
+    with _under(patches):
+        compiled = jax.jit(fn).lower(*args).compile()
+    jax.block_until_ready(compiled(*args))
+    return time.perf_counter() - start, lambda: compiled(*args)
+
+
+def _under(patches):
+    """Every one of ``patches`` (``mock.patch`` objects) active, as one context."""
+    stack = contextlib.ExitStack()
+    for patch in patches:
+        stack.enter_context(patch)
+    return stack
+
+
+def main():
+    first, calls = {}, {}
+    for scene, h in CASES:
+        model = getattr(vj.models, scene)()
+        x0 = model.initial_state()
+        for order in (1, 2):
+            forward = lambda m, x, o=order, h=h: vj.simulate(m, x, h, FORWARD_STEPS, order=o, throw=False)  # noqa: E731
+            loss = lambda m, x, o=order, h=h: _final_sum(vj.simulate(  # noqa: E731
+                m, x, h, GRADIENT_STEPS, order=o, save_every=GRADIENT_SAVE_EVERY, throw=False))
+            gradient = lambda m, x, loss=loss: eqx.filter_grad(loss)(m, x)  # noqa: E731
+            for plan, patches in PLANS.items():
+                for kind, fn in (("forward", forward), ("gradient", gradient)):
+                    key = (scene, order, kind, plan)
+                    first[key], calls[key] = _compiled(fn, model, x0, patches=patches)
+    seconds = time_alternately(calls, ARGS.repeats)
+    rows = []
+    for scene, _ in CASES:
+        for order in (1, 2):
+            for kind, n in (("forward", FORWARD_STEPS), ("gradient", GRADIENT_STEPS)):
+                rolled, unrolled = (seconds[(scene, order, kind, p)] for p in PLANS)
+                f_rolled, f_unrolled = (first[(scene, order, kind, p)] for p in PLANS)
+                rows.append(dict(scene=scene, order=order, kind=kind, steps=n, rolled_us_per_step=rolled / n * 1e6,
+                                 unrolled_us_per_step=unrolled / n * 1e6, ratio=rolled / unrolled,
+                                 rolled_first_call_s=f_rolled, unrolled_first_call_s=f_unrolled))
+                print(f"{scene:18s} order {order} {kind:8s}: rolled {rolled / n * 1e6:6.2f} µs/step, unrolled "
+                      f"{unrolled / n * 1e6:6.2f} µs/step, ratio {rolled / unrolled:.2f}; first call {f_rolled:5.2f} s / {f_unrolled:5.2f} s")
+    write_config_json("rolled_under_jit", ARGS.fast_loops, repeats=ARGS.repeats, rows=rows)
+
+
+def _final_sum(sol):
+    """A scalar of the final node (position where the scene has one, else the attitude)."""
+    return (sol.q[-1] if sol.q is not None else sol.g[-1]).sum()
+
+
+if __name__ == "__main__":
+    main()
