@@ -202,7 +202,7 @@ def _rolls_newton(one_step, carry) -> bool:
     reverse and forward mode only with the loop option (differentiation runs the default plan's
     loops, which are one kernel only then). Under ``jit`` the vehicle's order-2 loops are then
     one kernel (5,490 → 2,934 equations): its steps 0.34× as long with default XLA, the other
-    cases' 0.56–1.05×, gradients with the loop option 0.77–0.99× (``python
+    cases' 0.56–1.06×, gradients with the loop option 0.77–1.03× (``python
     benchmarks/rolled_under_jit.py [--fast-loops]``). Where the loops
     are not one kernel, rolled iterations cost more than they save (throwaway A/Bs when this was
     written, under ``jit``, default XLA: SO(4)'s rigid body, whose step calls LAPACK, 8.4 → 10.4
