@@ -222,7 +222,7 @@ def test_the_loop_option_plan_puts_the_initial_state_first_without_a_copy(monkey
     keeps the initial state (:func:`vi_jax.engine._advance._initial_node_first`) instead of
     copying it in front of the nodes: the same Solution as the default plan's (to Newton's
     tolerance per step), the same Newton results (its iterations rolled with the loop option,
-    differentiated too: ``_advance._rolls_newton``), and the same gradients, checkpointed or
+    differentiated too: ``_advance._value_step``), and the same gradients, checkpointed or
     not. The plan is read at trace time, so each is traced afresh here."""
     model = vj.models.UnderwaterVehicle()
     x0 = model.initial_state()

@@ -7,6 +7,7 @@ quickly as one kernel, keeps the default plan;
 differentiation runs the default plan's program (the region's JVP is never taken); the values
 are the default plan's to round-off."""
 
+import os
 import subprocess
 import sys
 
@@ -20,6 +21,7 @@ from test_one_kernel import one_kernel_calls
 import vi_jax as vj
 from vi_jax import _saved_nodes
 from vi_jax.engine import _advance, _simulate
+from vi_jax.engine._cpu_tuning import FAST_LOOPS_FLAG
 
 EPS = np.finfo(np.float64).eps
 SCENES = {
@@ -68,7 +70,7 @@ def test_a_large_program_keeps_the_default_plan(monkeypatch, fresh_programs):
     system, x0 = _scene("vehicle")
     monkeypatch.setattr(_saved_nodes, "ONE_KERNEL_EQUATIONS", 500)
     monkeypatch.setattr(_advance, "ONE_KERNEL_EQUATIONS", 500)
-    rolled = _spy_on_rolls_newton(monkeypatch)
+    rolled = _spy_on_value_steps(monkeypatch)
     run = lambda m, x: vj.simulate(m, x, 0.01, 12, order=2, throw=False).g  # noqa: E731
     assert _regions_in_jaxpr(run, system, x0) == 0
     assert rolled == [False]
@@ -76,47 +78,51 @@ def test_a_large_program_keeps_the_default_plan(monkeypatch, fresh_programs):
     assert np.all(np.isfinite(jax.jit(run)(system, x0)))
 
 
-def _spy_on_rolls_newton(monkeypatch):
-    """A list receiving each of ``_advance._rolls_newton``'s answers from now on."""
-    answers, decide = [], _advance._rolls_newton
+def _spy_on_value_steps(monkeypatch):
+    """A list receiving, from now on, whether ``_advance._value_step`` gave the value program a
+    step of its own (the concrete call's: Newton's iterations rolled, sub-steps of traced count)."""
+    answers, decide = [], _advance._value_step
 
-    def spy(one_step, carry):
-        answers.append(decide(one_step, carry))
-        return answers[-1]
+    def spy(make_step, gammas, carry):
+        step = decide(make_step, gammas, carry)
+        answers.append(step is not None)
+        return step
 
-    monkeypatch.setattr(_advance, "_rolls_newton", spy)
+    monkeypatch.setattr(_advance, "_value_step", spy)
     return answers
 
 
 @pytest.mark.parametrize("name", list(SCENES))
-def test_newton_is_rolled_under_jit_for_one_trajectory_only(name, monkeypatch, fresh_programs):
-    """Under ``jit`` a single trajectory's step (orders 1, 2) rolls Newton's iterations, as the
-    concrete call's one-kernel loops do: the vehicle at order 2 is then one kernel too. A step
-    that a ``jax.vmap`` batches, and a composition (order 4), keep them unrolled."""
+def test_under_jit_one_trajectory_runs_the_concrete_calls_step(name, monkeypatch, fresh_programs):
+    """Under ``jit`` a single trajectory's value program runs the concrete call's step (Newton's
+    iterations rolled; a composition's sub-steps a loop of traced count) in one kernel: the
+    vehicle at order 2 and every scene at order 4 too. A step that a ``jax.vmap`` batches keeps
+    the step of static counts."""
     system, x0 = _scene(name)
-    rolled = _spy_on_rolls_newton(monkeypatch)
-    for order in (1, 2):
+    own_step = _spy_on_value_steps(monkeypatch)
+    for order in (1, 2, 4):
         run = lambda m, x, order=order: vj.simulate(m, x, 0.01, 12, order=order, throw=False).g  # noqa: E731
         assert _regions_in_jaxpr(run, system, x0) == 1
-    assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 1  # order 2
-    assert rolled and all(rolled)
-    rolled.clear()
+    assert one_kernel_calls(jax.jit(run).lower(system, x0).compile()) == 1  # order 4
+    assert own_step and all(own_step)
+    own_step.clear()
     xis = jnp.stack([x0.xi, 1.01 * x0.xi])
-    jax.make_jaxpr(jax.vmap(lambda xi: vj.simulate(system, vj.State(x0.g, xi, x0.q, x0.qdot), 0.01, 12, throw=False).g))(xis)
-    jax.make_jaxpr(lambda m, x: vj.simulate(m, x, 0.01, 12, order=4, throw=False).g)(system, x0)
-    assert rolled == [False]  # the vmapped step; the composition does not ask
+    for order in (1, 4):
+        jax.make_jaxpr(jax.vmap(lambda xi: vj.simulate(system, vj.State(x0.g, xi, x0.q, x0.qdot), 0.01, 12, order=order, throw=False).g))(xis)
+    assert own_step == [False, False]
 
 
+@pytest.mark.parametrize("order", [2, 4])
 @pytest.mark.parametrize("name", list(SCENES))
-def test_rolled_iterations_equal_the_unrolled_to_newtons_tolerance(name, monkeypatch, fresh_programs):
+def test_the_concrete_calls_step_equals_the_static_one_to_newtons_tolerance(name, order, monkeypatch, fresh_programs):
     """Rolled, Newton stops at the first iterate within its tolerance; unrolled, it checks once,
-    after the chord steps. Each run solves every step to that tolerance (64ε relative): over a
-    bounded motion the states part by at most about twice that per step of each array's scale."""
+    after the chord steps. Each run solves every (sub-)step to that tolerance (64ε relative): over
+    a bounded motion the states part by at most about twice that per step of each array's scale."""
     system, x0 = _scene(name)
     n = 100
-    run = lambda m, x: vj.simulate(m, x, 0.01, n, order=2, throw=False)  # noqa: E731
+    run = lambda m, x: vj.simulate(m, x, 0.01, n, order=order, throw=False)  # noqa: E731
     rolled = jax.jit(run)(system, x0)
-    monkeypatch.setattr(_advance, "_rolls_newton", lambda one_step, carry: False)
+    monkeypatch.setattr(_advance, "_value_step", lambda make_step, gammas, carry: None)
     fresh_programs()
     unrolled = jax.jit(run)(system, x0)
     for field in ("g", "xi", "q", "M", "P", "energy"):
@@ -167,7 +173,8 @@ def test_values_are_the_default_plans_to_round_off(name, monkeypatch, fresh_prog
 
 
 # In a fresh process (XLA aborts the process on a program it cannot compile): compositions of
-# static length under jit against the concrete call (traced fractions, one kernel), max |Δg|.
+# static length under jit against the concrete call (traced fractions, one kernel), max |Δg|,
+# and each scene's gradient at order 4 (the rule's program: static sub-steps, default plan).
 _COMPOSITIONS_UNDER_JIT = """
 import jax, numpy as np
 jax.config.update("jax_enable_x64", True)
@@ -178,17 +185,25 @@ for scene in (vj.models.HeavyTop(), vj.models.RigidBody()):
         traced = jax.jit(lambda m, x: vj.simulate(m, x, 0.01, N_STEPS, order=order))(scene, x0)
         concrete = vj.simulate(scene, x0, 0.01, N_STEPS, order=order)
         print(float(np.max(np.abs(np.asarray(traced.g) - np.asarray(concrete.g)))))
+    energy = lambda s: vj.simulate(scene, vj.State(x0.g, s * x0.xi, None, None), 0.01, N_STEPS, order=4).energy[-1]
+    print(float(jax.jit(jax.grad(energy))(1.0)))
 """
 
 
-def test_compositions_under_jit_compile_and_equal_the_concrete_call():
-    """The heavy top and the rigid body at orders 4 and 6 under ``jit``: their forward program
-    keeps the default plan (as a region, XLA:CPU aborted compiling it: ``_advance._default_plan``)
-    and equals the concrete call, whose loops are one kernel. Each run solves every sub-step to
-    Newton's tolerance (64ε relative): their states may part by about that per step."""
+@pytest.mark.parametrize("flags", ["", FAST_LOOPS_FLAG])
+def test_compositions_under_jit_compile_and_equal_the_concrete_call(flags):
+    """The heavy top and the rigid body at orders 4 and 6 under ``jit``, with default XLA and the
+    loop option: their value program runs the concrete call's step, its sub-steps a loop of a
+    count XLA does not know (with a known count, XLA:CPU aborted compiling it as one kernel:
+    ``_advance._default_plan``), and equals the concrete call; their gradients' program (static
+    sub-steps) compiles. Each run solves every sub-step to Newton's tolerance (64ε relative):
+    their states may part by about that per step."""
     n_steps = 40
     script = _COMPOSITIONS_UNDER_JIT.replace("N_STEPS", str(n_steps))
-    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip())
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
     assert run.returncode == 0, run.stderr[-3000:]
-    differences = [float(x) for x in run.stdout.split()]
-    assert len(differences) == 4 and max(differences) <= n_steps * 2 * 64 * EPS, differences
+    values = [float(x) for x in run.stdout.split()]
+    differences = values[0:2] + values[3:5]
+    assert len(values) == 6 and max(differences) <= n_steps * 2 * 64 * EPS, values
+    assert np.all(np.isfinite(values[2::3])), values

@@ -166,7 +166,7 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
     positions' gradient: 289 MB of XLA temporaries, against 50 MB in blocks of 128 nodes).
     Only differentiation sees these checkpoints: a program that does not differentiate runs the
     loops of ``checkpoint=False`` (:func:`~vi_jax._saved_nodes.checkpointed`). Where those loops
-    are one kernel, a single trajectory's step rolls Newton's iterations (:func:`_rolls_newton`).
+    are one kernel, a single trajectory's step is the concrete call's (:func:`_value_step`).
     """
 
     carry = _with_previous(state)
@@ -176,11 +176,12 @@ def advance_scan(system, tau, rule, gammas, h, state, length, save_every, rtol, 
         return _scanned_nodes(one_step, carry, length, save_every, checkpoint)
 
     # The program of checkpoint=False unless differentiated, one kernel where it can be.
-    forward = in_one_kernel if len(gammas) == 1 else _default_plan
-    rolled = _with_rolled_iterations(one_step) if len(gammas) == 1 and _rolls_newton(one_step, carry) else None
+    value_step = _value_step(lambda gammas: _one_step(system, tau, rule, gammas, h, rtol, max_iter), gammas, carry)
+    forward = in_one_kernel if len(gammas) == 1 or value_step is not None else _default_plan
     # Differentiation runs the default plan's loops, one kernel only with the loop option.
-    differentiated = rolled if rolled is not None and one_kernel_loops() else one_step
-    return checkpointed(program, differentiated, carry, checkpoint=checkpoint, forward=forward, forward_step=rolled)
+    rolled_rule = value_step is not None and len(gammas) == 1 and one_kernel_loops()
+    differentiated = value_step if rolled_rule else one_step
+    return checkpointed(program, differentiated, carry, checkpoint=checkpoint, forward=forward, forward_step=value_step)
 
 
 def _with_rolled_iterations(step):
@@ -193,36 +194,45 @@ def _with_rolled_iterations(step):
     return rolled
 
 
-def _rolls_newton(one_step, carry) -> bool:
-    """Whether :func:`advance_scan` runs ``one_step`` (a single-stage step: orders 1, 2) with
-    Newton's iterations rolled (:func:`~vi_jax.solvers._newton.rolled_iterations`), as the
-    concrete call's one-kernel loops do: on XLA:CPU, for a step no ``jax.vmap`` batches
-    (:func:`~vi_jax.lie._small.batched_by_vmap`), whose rolled jaxpr is a one-kernel region's
-    (:func:`~vi_jax._one_kernel.kernel_equations`, at most ``ONE_KERNEL_EQUATIONS``); in
-    reverse and forward mode only with the loop option (differentiation runs the default plan's
-    loops, which are one kernel only then). Under ``jit`` the vehicle's order-2 loops are then
-    one kernel (5,490 → 2,934 equations): its steps 0.34× as long with default XLA, the other
-    cases' 0.56–1.06×, gradients with the loop option 0.77–1.03× (``python
-    benchmarks/rolled_under_jit.py [--fast-loops]``). Where the loops
-    are not one kernel, rolled iterations cost more than they save (throwaway A/Bs when this was
-    written, under ``jit``, default XLA: SO(4)'s rigid body, whose step calls LAPACK, 8.4 → 10.4
-    µs a step; a plain ``vmap`` of ``vj.simulate`` over 256 members 1.1–2.4× slower, but for the
-    vehicle at order 1; the rigid body's gradients 1.08–1.11× as long, in two runs of that
-    benchmark's first form, which rolled them with default XLA too)."""
+def _value_step(make_step, gammas, carry):
+    """The step of :func:`advance_scan`'s value program, where it differs from
+    ``make_step(gammas)``'s, or None: as in the concrete call's one-kernel loops, Newton's
+    iterations rolled (:func:`~vi_jax.solvers._newton.rolled_iterations`) and a composition's
+    sub-steps (orders 4, 6) a loop of a count XLA does not know (a :class:`TracedComposition`
+    behind an optimisation barrier: XLA:CPU aborts compiling a one-kernel region whose loop over
+    the sub-steps has a known count, :func:`_default_plan`). On XLA:CPU, for a step no ``jax.vmap``
+    batches (:func:`~vi_jax.lie._small.batched_by_vmap`), whose jaxpr so traced is a one-kernel
+    region's (:func:`~vi_jax._one_kernel.kernel_equations`, at most ``ONE_KERNEL_EQUATIONS``).
+    Differentiation keeps ``make_step(gammas)`` (:func:`~vi_jax._saved_nodes.checkpointed`),
+    rolled for orders 1, 2 with the loop option only (the rule's loops are one kernel only then).
+
+    Under ``jit`` the vehicle's order-2 loops are then one kernel (5,490 → 2,934 equations): its
+    steps 0.34× as long with default XLA, the other cases' at orders 1 and 2 0.56–1.06×, their
+    gradients with the loop option 0.77–1.03×; at orders 4 and 6 0.19–0.32× with default XLA,
+    0.83–1.06× with the loop option (``python
+    benchmarks/rolled_under_jit.py [--fast-loops]``). Where the loops are not one kernel, rolled
+    iterations cost more than they save (throwaway A/Bs when this was written, under ``jit``,
+    default XLA: SO(4)'s rigid body, whose step calls LAPACK, 8.4 → 10.4 µs a step; a plain
+    ``vmap`` of ``vj.simulate`` over 256 members 1.1–2.4× slower, but for the vehicle at order 1;
+    the rigid body's gradients 1.08–1.11× as long, in two runs of that benchmark's first form,
+    which rolled them with default XLA too)."""
     if target_platform() != "cpu" or batched_by_vmap():
-        return False
-    equations = kernel_equations(jax.make_jaxpr(_with_rolled_iterations(one_step))(carry).jaxpr)
-    return equations is not None and equations <= ONE_KERNEL_EQUATIONS
+        return None
+    if len(gammas) > 1:
+        gammas = jax.lax.optimization_barrier(traced_composition(gammas))
+    step = _with_rolled_iterations(make_step(gammas))
+    equations = kernel_equations(jax.make_jaxpr(step)(carry).jaxpr)
+    return step if equations is not None and equations <= ONE_KERNEL_EQUATIONS else None
 
 
 def _default_plan(program):
     """``program`` on XLA:CPU's default loop plan: the forward program of a composition (orders 4
-    and 6) under a transformation. XLA:CPU aborts the process compiling a one-kernel region whose
-    step holds the rolled loop over the sub-steps of static length (jax 0.10.2: "Check failed:
-    slice_to_buffer_table_index_.empty() || has_explicit_index", the heavy top and the rigid body
-    at orders 4 and 6 under ``jit``; unrolled, or with the concrete call's traced count, it
-    compiles; tests/test_simulate_one_kernel.py). The vehicle's compositions are too large for
-    one kernel anyway (``ONE_KERNEL_EQUATIONS``)."""
+    and 6) under a transformation, where :func:`_value_step` has no step of its own (a ``vmap``,
+    an accelerator, a step beyond one kernel). XLA:CPU aborts the process compiling a one-kernel
+    region whose step holds the rolled loop over the sub-steps of static length (jax 0.10.2:
+    "Check failed: slice_to_buffer_table_index_.empty() || has_explicit_index", the heavy top and
+    the rigid body at orders 4 and 6 under ``jit``; unrolled, or with the concrete call's traced
+    count, it compiles; tests/test_simulate_one_kernel.py)."""
     return program
 
 
