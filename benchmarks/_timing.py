@@ -1,6 +1,7 @@
 """Timing helpers shared by the benchmarks: compiled code only (warm-up, block_until_ready,
 median of repeats), compile time reported separately."""
 
+import contextlib
 import json
 import os
 import platform
@@ -11,6 +12,25 @@ import time
 from pathlib import Path
 
 import jax
+
+
+@contextlib.contextmanager
+def under_patches(patches):
+    """Every one of ``patches`` (``mock.patch`` objects) active."""
+    with contextlib.ExitStack() as stack:
+        for patch in patches:
+            stack.enter_context(patch)
+        yield
+
+
+def compiled_under(fn, *args, patches=()):
+    """``fn`` jitted and compiled for ``args`` under ``patches`` (the trace sees them; the
+    compiled program keeps them): (compile + first run seconds, a call, its output)."""
+    start = time.perf_counter()
+    with under_patches(patches):
+        compiled = jax.jit(fn).lower(*args).compile()
+    out = jax.block_until_ready(compiled(*args))
+    return time.perf_counter() - start, lambda: compiled(*args), out
 
 
 def time_compiled(fn, *args, repeats=7):

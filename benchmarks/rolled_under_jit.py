@@ -12,11 +12,9 @@ compile and run) in seconds.
 """
 
 import argparse
-import contextlib
-import time
 from unittest import mock
 
-from _timing import parse_args_with_fast_loops, time_alternately, write_config_json
+from _timing import compiled_under, parse_args_with_fast_loops, time_alternately, write_config_json
 
 PARSER = argparse.ArgumentParser()
 PARSER.add_argument("--repeats", type=int, default=7)
@@ -36,28 +34,10 @@ PLANS = {"rolled": (), "unrolled": (mock.patch.object(_advance, "_value_step", l
 FORWARD_ORDERS, GRADIENT_ORDERS = (1, 2, 4, 6), (1, 2)
 
 
-def _compiled(fn, *args, patches=()):
-    """``fn`` jitted and compiled for ``args`` under ``patches``: (first call seconds, a call)."""
-    jax.clear_caches()  # vj.simulate's inner program is cached by its arguments: trace it anew
-    start = time.perf_counter()
-    with _under(patches):
-        compiled = jax.jit(fn).lower(*args).compile()
-    jax.block_until_ready(compiled(*args))
-    return time.perf_counter() - start, lambda: compiled(*args)
-
-
-def _under(patches):
-    """Every one of ``patches`` (``mock.patch`` objects) active, as one context."""
-    stack = contextlib.ExitStack()
-    for patch in patches:
-        stack.enter_context(patch)
-    return stack
-
-
 def main():
     first, calls = {}, {}
     model = vj.models.UnderwaterVehicle()
-    _compiled(lambda m, x: vj.simulate(m, x, 0.01, 2).g, model, model.initial_state())  # the process's first compile: not timed
+    compiled_under(lambda m, x: vj.simulate(m, x, 0.01, 2).g, model, model.initial_state())  # the process's first compile: not timed
     for scene, h in CASES:
         model = getattr(vj.models, scene)()
         x0 = model.initial_state()
@@ -69,7 +49,8 @@ def main():
                     m, x, h, GRADIENT_STEPS, order=o, save_every=GRADIENT_SAVE_EVERY, throw=False))
                 fn = lambda m, x, loss=loss: eqx.filter_grad(loss)(m, x)  # noqa: E731
             for plan, patches in PLANS.items():
-                first[(scene, order, kind, plan)], calls[(scene, order, kind, plan)] = _compiled(fn, model, x0, patches=patches)
+                jax.clear_caches()  # vj.simulate's inner program is cached by its arguments: trace it anew
+                first[(scene, order, kind, plan)], calls[(scene, order, kind, plan)], _ = compiled_under(fn, model, x0, patches=patches)
     seconds = time_alternately(calls, ARGS.repeats)
     rows = []
     for scene, _ in CASES:

@@ -33,7 +33,6 @@ traced lengths, which ``vj.simulate`` ran before every-step runs got blocks of s
 """
 
 import argparse
-import contextlib
 import os
 import statistics
 import sys
@@ -56,7 +55,7 @@ from vi_jax.solvers import CHORD_ITERATIONS, _newton  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from _timing import alternate_samples, write_json  # noqa: E402
+from _timing import alternate_samples, compiled_under, under_patches, write_json  # noqa: E402
 from hand_vehicle import node_diagnostics_hand, simulate_hand, vehicle_params  # noqa: E402
 
 
@@ -74,31 +73,12 @@ def _with_traced_save_every(system, x0, h, n_saved, save_every, **options):
     return first_rows(sol, n_saved + 1)
 
 
-@contextlib.contextmanager
-def _under(patches):
-    """Every one of ``patches`` (``mock.patch`` objects) active."""
-    with contextlib.ExitStack() as stack:
-        for patch in patches:
-            stack.enter_context(patch)
-        yield
-
-
-def _compiled(fn, *args, patches=()):
-    """``fn`` jitted and compiled for ``args`` under ``patches`` (the trace sees them; the
-    compiled program keeps them): (compile + first run seconds, a call, its output)."""
-    start = time.perf_counter()
-    with _under(patches):
-        compiled = jax.jit(fn).lower(*args).compile()
-    out = jax.block_until_ready(compiled(*args))
-    return time.perf_counter() - start, lambda: compiled(*args), out
-
-
 def _concrete(fn, *args, patches=()):
     """A concrete call of ``fn`` (its programs cached by vi_jax), made under ``patches`` every
     time: (first call seconds, a call, its output)."""
 
     def call():
-        with _under(patches):
+        with under_patches(patches):
             return fn(*args)
 
     start = time.perf_counter()
@@ -123,10 +103,10 @@ def main():
     hand = lambda p, x: simulate_hand(p, x.g, x.q, x.xi, x.qdot, h, n, "cayley", 3)  # noqa: E731
     every = lambda m, x: vj.simulate(m, x, h, n, throw=False)  # noqa: E731
     every_row = "vj.simulate order=1, every node saved + diagnostics"
-    rows = {HAND: _compiled(hand, params, x0)}
-    rows[WITH_DIAGNOSTICS] = _compiled(lambda p, x: (nodes := hand(p, x)) + node_diagnostics_hand(p, *nodes), params, x0)
+    rows = {HAND: compiled_under(hand, params, x0)}
+    rows[WITH_DIAGNOSTICS] = compiled_under(lambda p, x: (nodes := hand(p, x)) + node_diagnostics_hand(p, *nodes), params, x0)
     for order in (1, 2):
-        rows[f"vj.simulate order={order}, every node saved + diagnostics"] = _compiled(
+        rows[f"vj.simulate order={order}, every node saved + diagnostics"] = compiled_under(
             lambda m, x, order=order: vj.simulate(m, x, h, n, order=order, throw=False), model, x0
         )
     variants = {
@@ -139,8 +119,8 @@ def main():
     }
     for name, patches in variants.items():
         jax.clear_caches()  # vj.simulate's traced program is cached by its arguments: trace it anew
-        rows[f"{every_row}, {name}"] = _compiled(every, model, x0, patches=patches)
-    rows["vj.simulate order=1, final node only"] = _compiled(lambda m, x: vj.simulate(m, x, h, n, save_every=n, throw=False), model, x0)
+        rows[f"{every_row}, {name}"] = compiled_under(every, model, x0, patches=patches)
+    rows["vj.simulate order=1, final node only"] = compiled_under(lambda m, x: vj.simulate(m, x, h, n, save_every=n, throw=False), model, x0)
     # The call users make: concrete inputs, one program per saved-node capacity (traced step counts).
     rows["vj.simulate order=1, concrete call, every node saved + diagnostics"] = _concrete(every, model, x0)
     rows["vj.simulate order=1, concrete call, every node saved, traced save_every"] = _concrete(
