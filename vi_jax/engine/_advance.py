@@ -221,7 +221,10 @@ def _value_step(make_step, gammas, carry):
     if len(gammas) > 1:
         gammas = jax.lax.optimization_barrier(traced_composition(gammas))
     step = _with_rolled_iterations(make_step(gammas))
-    equations = kernel_equations(jax.make_jaxpr(step)(carry).jaxpr)
+    # Traced as checkpointed traces it (jax.closure_convert keeps the trace for its second call);
+    # the equations counted on the converted step, a replay of that trace.
+    converted, consts = jax.closure_convert(step, carry, None)
+    equations = kernel_equations(jax.make_jaxpr(converted)(carry, None, *consts).jaxpr)
     return step if equations is not None and equations <= ONE_KERNEL_EQUATIONS else None
 
 
